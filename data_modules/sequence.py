@@ -1,0 +1,167 @@
+"""Sequence datasets and the one LightningDataModule that wraps any of them."""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Sequence
+from dataclasses import replace
+
+import lightning as L
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch.utils.data import DataLoader, Dataset
+
+from data_modules.frame import DatasetError, Frame, Intrinsics
+
+
+def check_monotonic_timestamps(timestamps: Sequence[float] | np.ndarray, source: str) -> np.ndarray:
+    """Return ``timestamps`` as float64; raise :class:`DatasetError` unless strictly increasing and finite."""
+    ts = np.asarray(timestamps, dtype=np.float64)
+    if ts.ndim != 1:
+        raise DatasetError(source, f"timestamps must be 1-D, got shape {ts.shape}")
+    if not np.isfinite(ts).all():
+        bad = int(np.flatnonzero(~np.isfinite(ts))[0])
+        raise DatasetError(source, f"timestamp {bad} is not finite")
+    if ts.size > 1:
+        step = np.diff(ts)
+        if (step <= 0).any():
+            bad = int(np.flatnonzero(step <= 0)[0]) + 1
+            raise DatasetError(source, f"timestamps are not strictly increasing at entry {bad} ({ts[bad - 1]:.6f} -> {ts[bad]:.6f})")
+    return ts
+
+
+class SequenceDataset(Dataset, abc.ABC):
+    """A recorded RGB-D sequence: ``len(ds)`` frames in time order, ``ds[i]`` is a :class:`Frame`.
+
+    Subclasses set ``name``, ``intrinsics`` and ``timestamps`` (strictly increasing seconds, one per frame)
+    in ``__init__`` and implement :meth:`load_frame`.
+    """
+
+    name: str
+    intrinsics: Intrinsics
+    timestamps: np.ndarray
+    has_gt_poses: bool = False
+    has_masks: bool = False
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    @abc.abstractmethod
+    def load_frame(self, i: int) -> Frame:
+        """Read frame ``i`` (0 <= i < len) from disk or generate it."""
+
+    def __getitem__(self, i: int) -> Frame:
+        if not 0 <= i < len(self):
+            raise IndexError(f"frame {i} out of range for {self.name} with {len(self)} frames")
+        return self.load_frame(i)
+
+    def describe(self) -> dict[str, object]:
+        """Static facts about the sequence (no frame is read)."""
+        duration = float(self.timestamps[-1] - self.timestamps[0]) if len(self) else 0.0
+        return {
+            "name": self.name,
+            "frames": len(self),
+            "duration_s": duration,
+            "width": self.intrinsics.width,
+            "height": self.intrinsics.height,
+            "intrinsics": self.intrinsics.as_dict(),
+            "has_gt_poses": bool(self.has_gt_poses),
+            "has_masks": bool(self.has_masks),
+        }
+
+
+def resize_frame(frame: Frame, width: int, height: int) -> Frame:
+    """Resize a frame: area-averaged colour, nearest-neighbour depth and mask (no mixed depths at edges)."""
+    if (frame.width, frame.height) == (width, height):
+        return frame
+    rgb = F.interpolate(frame.rgb.permute(2, 0, 1)[None], size=(height, width), mode="area")[0].permute(1, 2, 0)
+    depth = F.interpolate(frame.depth[None, None], size=(height, width), mode="nearest-exact")[0, 0]
+    mask = None
+    if frame.mask is not None:
+        mask = F.interpolate(frame.mask[None, None].float(), size=(height, width), mode="nearest-exact")[0, 0] > 0.5
+    return replace(frame, rgb=rgb.contiguous().clamp(0, 1), depth=depth.contiguous(), mask=mask)
+
+
+class SequenceView(SequenceDataset):
+    """A strided, truncated, resized and depth-clipped view of another sequence."""
+
+    def __init__(
+        self,
+        base: SequenceDataset,
+        stride: int = 1,
+        max_frames: int | None = None,
+        resize: Sequence[int] | None = None,
+        depth_min: float = 0.0,
+        depth_max: float | None = None,
+    ) -> None:
+        if stride < 1:
+            raise DatasetError("data.stride", f"must be >= 1, got {stride}")
+        if max_frames is not None and max_frames < 1:
+            raise DatasetError("data.max_frames", f"must be >= 1 or null, got {max_frames}")
+        if depth_max is not None and depth_max <= depth_min:
+            raise DatasetError("data.depth_max", f"must exceed depth_min={depth_min}, got {depth_max}")
+        self.base = base
+        self.name = base.name
+        self.source_indices = np.arange(0, len(base), stride)[:max_frames]
+        self.timestamps = np.asarray(base.timestamps)[self.source_indices]
+        self.has_gt_poses = base.has_gt_poses
+        self.has_masks = base.has_masks
+        if resize is not None:
+            if len(resize) != 2 or min(resize) <= 0:
+                raise DatasetError("data.resize", f"must be [width, height], got {list(resize)}")
+            self.size = (int(resize[0]), int(resize[1]))
+            self.intrinsics = base.intrinsics.resized(*self.size)
+        else:
+            self.size = None
+            self.intrinsics = base.intrinsics
+        self.depth_min = depth_min
+        self.depth_max = depth_max
+
+    def load_frame(self, i: int) -> Frame:
+        frame = self.base[int(self.source_indices[i])]
+        if self.size is not None:
+            frame = resize_frame(frame, *self.size)
+        depth = frame.depth
+        invalid = depth < self.depth_min
+        if self.depth_max is not None:
+            invalid |= depth > self.depth_max
+        if invalid.any():
+            frame = replace(frame, depth=torch.where(invalid, torch.zeros_like(depth), depth))
+        return frame
+
+
+def _first(batch: list[Frame]) -> Frame:
+    return batch[0]
+
+
+class SequenceDataModule(L.LightningDataModule):
+    """Streams one sequence frame by frame (batch size 1, time order, no shuffling)."""
+
+    def __init__(
+        self,
+        dataset: SequenceDataset,
+        stride: int = 1,
+        max_frames: int | None = None,
+        resize: Sequence[int] | None = None,
+        depth_min: float = 0.0,
+        depth_max: float | None = None,
+        num_workers: int = 0,
+    ) -> None:
+        super().__init__()
+        self.view = SequenceView(dataset, stride, max_frames, resize, depth_min, depth_max)
+        self.num_workers = num_workers
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        return self.view.intrinsics
+
+    def train_dataloader(self) -> DataLoader:
+        return DataLoader(
+            self.view,
+            batch_size=1,
+            shuffle=False,
+            num_workers=self.num_workers,
+            collate_fn=_first,
+            persistent_workers=self.num_workers > 0,
+        )

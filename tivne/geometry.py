@@ -1,0 +1,236 @@
+"""Camera and rigid-body geometry as pure, typed functions.
+
+Conventions: poses are camera-to-world (c2w) 4x4 matrices, OpenCV camera axes (x right, y down,
+z forward), pixel centres at integer coordinates (u = column, v = row). Ray directions have z = 1 in
+the camera frame, so the ray parameter equals z-depth.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from kornia.geometry.liegroup import Se3, So3
+
+from data_modules.frame import DatasetError, Intrinsics
+
+
+def intrinsics_to_K(intr: Intrinsics, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
+    """Intrinsics -> (3, 3) camera matrix."""
+    return intr.K(dtype=dtype, device=device)
+
+
+def K_to_intrinsics(K: torch.Tensor, width: int, height: int) -> Intrinsics:
+    """(3, 3) camera matrix + image size -> Intrinsics."""
+    return Intrinsics(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), int(width), int(height))
+
+
+def pixel_grid(height: int, width: int, device=None, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """(H, W, 2) pixel coordinates (u, v) of every pixel centre."""
+    v, u = torch.meshgrid(
+        torch.arange(height, device=device, dtype=dtype), torch.arange(width, device=device, dtype=dtype), indexing="ij"
+    )
+    return torch.stack([u, v], dim=-1)
+
+
+def pixel_to_ray(uv: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """Camera-frame ray directions with z = 1.
+
+    Args:
+        uv: (..., 2) pixel coordinates.
+        K: (3, 3) camera matrix.
+    Returns:
+        (..., 3) directions ((u - cx) / fx, (v - cy) / fy, 1).
+    """
+    x = (uv[..., 0] - K[0, 2]) / K[0, 0]
+    y = (uv[..., 1] - K[1, 2]) / K[1, 1]
+    return torch.stack([x, y, torch.ones_like(x)], dim=-1)
+
+
+def backproject(uv: torch.Tensor, depth: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """Pixels with z-depth -> camera-frame points.
+
+    Args:
+        uv: (..., 2) pixel coordinates.
+        depth: (...) z-depth in metres.
+        K: (3, 3).
+    Returns:
+        (..., 3) points.
+    """
+    return pixel_to_ray(uv, K) * depth[..., None]
+
+
+def backproject_depth(depth: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """Depth image (H, W) -> (H, W, 3) camera-frame points (invalid depth 0 gives the origin)."""
+    h, w = depth.shape
+    return backproject(pixel_grid(h, w, depth.device, depth.dtype), depth, K)
+
+
+def project(points: torch.Tensor, K: torch.Tensor, eps: float = 1e-8) -> tuple[torch.Tensor, torch.Tensor]:
+    """Camera-frame points -> pixel coordinates and z-depth.
+
+    Args:
+        points: (..., 3).
+        K: (3, 3).
+    Returns:
+        uv (..., 2) and z (...). Points with z <= eps get uv computed with z clamped to eps.
+    """
+    z = points[..., 2]
+    zc = z.clamp_min(eps)
+    u = K[0, 0] * points[..., 0] / zc + K[0, 2]
+    v = K[1, 1] * points[..., 1] / zc + K[1, 2]
+    return torch.stack([u, v], dim=-1), z
+
+
+def transform_points(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Apply rigid transform(s) to points.
+
+    Args:
+        T: (4, 4) or (..., 4, 4) broadcastable against points' leading dims.
+        points: (..., 3).
+    Returns:
+        (..., 3) = R p + t.
+    """
+    R = T[..., :3, :3]
+    t = T[..., :3, 3]
+    return (R @ points[..., None])[..., 0] + t
+
+
+def invert_pose(T: torch.Tensor) -> torch.Tensor:
+    """Inverse of rigid transform(s) (..., 4, 4) using R^T."""
+    R = T[..., :3, :3]
+    t = T[..., :3, 3:]
+    Rt = R.transpose(-1, -2)
+    out = torch.zeros_like(T)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3:] = -Rt @ t
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def se3_exp(xi: torch.Tensor) -> torch.Tensor:
+    """SE(3) exponential map.
+
+    Args:
+        xi: (..., 6) twist (v, w): translation part v first, rotation (axis-angle) w last,
+            as kornia's ``Se3.exp``.
+    Returns:
+        (..., 4, 4) rigid transforms. Differentiable with finite gradients at xi = 0.
+    """
+    lead = xi.shape[:-1]
+    T = Se3.exp(xi.reshape(-1, 6)).matrix()
+    return T.reshape(*lead, 4, 4)
+
+
+def se3_log(T: torch.Tensor) -> torch.Tensor:
+    """SE(3) logarithm (..., 4, 4) -> (..., 6) twist (v, w); inverse of :func:`se3_exp`."""
+    lead = T.shape[:-2]
+    Tf = T.reshape(-1, 4, 4)
+    so3 = So3.from_matrix(Tf[:, :3, :3])
+    se3 = Se3(so3, Tf[:, :3, 3])
+    return se3.log().reshape(*lead, 6)
+
+
+def compose(*poses: torch.Tensor) -> torch.Tensor:
+    """Matrix product of rigid transforms, left to right: compose(A, B, C) = A @ B @ C."""
+    out = poses[0]
+    for p in poses[1:]:
+        out = out @ p
+    return out
+
+
+def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    """Unit quaternions (..., 4) in TUM order (qx, qy, qz, qw) -> rotation matrices (..., 3, 3).
+
+    The quaternion is normalised first, so slightly off-unit file values are accepted.
+    """
+    q = q / q.norm(dim=-1, keepdim=True)
+    x, y, z, w = q.unbind(-1)
+    row0 = torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1)
+    row1 = torch.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1)
+    row2 = torch.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)
+    return torch.stack([row0, row1, row2], dim=-2)
+
+
+def matrix_to_quat(R: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) (qx, qy, qz, qw) with qw >= 0.
+
+    Uses the numerically stable branch on the largest diagonal term (Shepperd's method).
+    """
+    m = R
+    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    cands = torch.stack(
+        [
+            torch.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1], 1 + trace], -1),
+            torch.stack([1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2], m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] - m[..., 1, 2]], -1),
+            torch.stack([m[..., 0, 1] + m[..., 1, 0], 1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2], m[..., 1, 2] + m[..., 2, 1], m[..., 0, 2] - m[..., 2, 0]], -1),
+            torch.stack([m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], 1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2], m[..., 1, 0] - m[..., 0, 1]], -1),
+        ],
+        dim=-2,
+    )  # (..., 4 candidates, 4) each proportional to (x, y, z, w)
+    key = torch.stack([trace, m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]], -1)
+    best = key.argmax(-1)
+    q = torch.gather(cands, -2, best[..., None, None].expand(*best.shape, 1, 4))[..., 0, :]
+    q = q / q.norm(dim=-1, keepdim=True)
+    return torch.where(q[..., 3:4] < 0, -q, q)
+
+
+def pose_from_tq(t: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """Translation (..., 3) + quaternion (..., 4) (qx, qy, qz, qw) -> (..., 4, 4) pose."""
+    T = torch.zeros(*t.shape[:-1], 4, 4, dtype=t.dtype, device=t.device)
+    T[..., :3, :3] = quat_to_matrix(q.to(t.dtype))
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def read_tum_trajectory(path: str | Path) -> tuple[np.ndarray, torch.Tensor]:
+    """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` ('#' comments allowed).
+
+    Returns:
+        timestamps (N,) float64 and poses (N, 4, 4) float64.
+    Raises:
+        DatasetError naming the file and line for a missing file or a malformed line.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(path, "trajectory file not found")
+    rows = []
+    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.replace(",", " ").split()
+        if len(parts) != 8:
+            raise DatasetError(f"{path}:{lineno}", f"expected 8 numbers (timestamp tx ty tz qx qy qz qw), got {len(parts)}")
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            raise DatasetError(f"{path}:{lineno}", f"not a number in {line!r}") from None
+        if not np.isfinite(vals).all():
+            raise DatasetError(f"{path}:{lineno}", "non-finite value")
+        if np.linalg.norm(vals[4:]) < 1e-9:
+            raise DatasetError(f"{path}:{lineno}", "zero quaternion")
+        rows.append(vals)
+    if not rows:
+        raise DatasetError(path, "trajectory file has no poses")
+    arr = torch.tensor(rows, dtype=torch.float64)
+    return arr[:, 0].numpy(), pose_from_tq(arr[:, 1:4], arr[:, 4:8])
+
+
+def write_tum_trajectory(path: str | Path, timestamps, poses: torch.Tensor) -> None:
+    """Write (N,) timestamps and (N, 4, 4) c2w poses as a TUM trajectory file (written atomically)."""
+    path = Path(path)
+    poses = torch.as_tensor(poses, dtype=torch.float64)
+    ts = np.asarray(timestamps, dtype=np.float64)
+    if len(ts) != len(poses):
+        raise ValueError(f"{len(ts)} timestamps but {len(poses)} poses")
+    q = matrix_to_quat(poses[:, :3, :3]).numpy()
+    t = poses[:, :3, 3].numpy()
+    lines = ["# timestamp tx ty tz qx qy qz qw"]
+    for i in range(len(ts)):
+        lines.append(" ".join([f"{ts[i]:.6f}"] + [f"{v:.9f}" for v in (*t[i], *q[i])]))
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    tmp.replace(path)
