@@ -1,0 +1,4 @@
+from tivne.field.networks import CanonicalMLP, DeformationMLP, FieldOutputs, TimeVaryingField, time_encoding
+from tivne.field.voxels import GridCapacityError, SparseVoxelGrid
+
+__all__ = ["CanonicalMLP", "DeformationMLP", "FieldOutputs", "GridCapacityError", "SparseVoxelGrid", "TimeVaryingField", "time_encoding"]

@@ -1,0 +1,205 @@
+"""Sparse voxel grid with corner-shared embeddings, indexed by a tensor hash of integer coordinates.
+
+Voxel (i, j, k) spans [i, i+1) x [j, j+1) x [k, k+1) in units of ``voxel_size``; its 8 corners are the
+integer lattice points (i+dx, j+dy, k+dz). Each lattice point allocated as some voxel's corner owns one
+row of the embedding table E, so neighbouring voxels share embeddings. Keys are packed int64s kept
+sorted, so membership and lookup are ``torch.searchsorted`` (no preset scene bounds, no dense box).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+_BITS = 21
+_OFFSET = 1 << (_BITS - 1)  # coordinates in [-2^20, 2^20) voxels: +-100 km at 10 cm
+_MASK = (1 << _BITS) - 1
+
+# Corner order i = 4*dx + 2*dy + dz (as Vox-Fusion).
+CORNER_OFFSETS = torch.tensor([[(i >> 2) & 1, (i >> 1) & 1, i & 1] for i in range(8)], dtype=torch.long)
+
+
+class GridCapacityError(RuntimeError):
+    """Raised when allocation would exceed the grid's hard cap on embedding rows."""
+
+
+def pack_coords(coords: torch.Tensor) -> torch.Tensor:
+    """(..., 3) int64 voxel coordinates -> (...) int64 keys (order-preserving per axis, x major)."""
+    c = coords + _OFFSET
+    if (c < 0).any() or (c > _MASK).any():
+        raise ValueError(f"voxel coordinate out of the hashable range +-{_OFFSET}")
+    return (c[..., 0] << (2 * _BITS)) | (c[..., 1] << _BITS) | c[..., 2]
+
+
+def unpack_keys(keys: torch.Tensor) -> torch.Tensor:
+    """(...) int64 keys -> (..., 3) int64 voxel coordinates."""
+    return torch.stack([(keys >> (2 * _BITS)) & _MASK, (keys >> _BITS) & _MASK, keys & _MASK], dim=-1) - _OFFSET
+
+
+def sorted_lookup(sorted_keys: torch.Tensor, queries: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Positions of ``queries`` in ``sorted_keys``.
+
+    Args:
+        sorted_keys: (K,) ascending int64.
+        queries: (...) int64.
+    Returns:
+        pos (...) clamped into [0, K-1] and found (...) bool.
+    """
+    if sorted_keys.numel() == 0:
+        return torch.zeros_like(queries), torch.zeros_like(queries, dtype=torch.bool)
+    pos = torch.searchsorted(sorted_keys, queries).clamp_(max=sorted_keys.numel() - 1)
+    return pos, sorted_keys[pos] == queries
+
+
+def trilinear_weights(frac: torch.Tensor) -> torch.Tensor:
+    """Trilinear weights of the 8 corners.
+
+    Args:
+        frac: (P, 3) position inside the voxel in [0, 1)^3.
+    Returns:
+        (P, 8) weights in corner order 4*dx + 2*dy + dz; they sum to 1.
+    """
+    offs = CORNER_OFFSETS.to(frac.device, frac.dtype)  # (8, 3)
+    w = frac[:, None, :] * offs + (1 - frac[:, None, :]) * (1 - offs)  # (P, 8, 3)
+    return w.prod(dim=-1)
+
+
+class SparseVoxelGrid(nn.Module):
+    """Corner-shared embeddings E on sparsely allocated voxels.
+
+    Args:
+        voxel_size: edge length in metres.
+        embed_dim: Q, embedding width.
+        capacity: initial number of embedding rows; doubled on demand.
+        max_capacity: hard cap on rows; exceeding it raises :class:`GridCapacityError`.
+        init_std: embeddings are initialised N(0, init_std^2).
+    """
+
+    def __init__(
+        self,
+        voxel_size: float = 0.1,
+        embed_dim: int = 16,
+        capacity: int = 20000,
+        max_capacity: int = 2_000_000,
+        init_std: float = 0.01,
+    ) -> None:
+        super().__init__()
+        if voxel_size <= 0:
+            raise ValueError(f"voxel_size must be positive, got {voxel_size}")
+        self.voxel_size = float(voxel_size)
+        self.embed_dim = int(embed_dim)
+        self.max_capacity = int(max_capacity)
+        self.init_std = float(init_std)
+        self.embeddings = nn.Parameter(torch.randn(int(capacity), self.embed_dim) * self.init_std)
+        self.register_buffer("voxel_keys", torch.zeros(0, dtype=torch.long))  # (V,) sorted
+        self.register_buffer("voxel_corner_rows", torch.zeros(0, 8, dtype=torch.long))  # (V, 8)
+        self.register_buffer("corner_keys", torch.zeros(0, dtype=torch.long))  # (C,) sorted
+        self.register_buffer("corner_rows", torch.zeros(0, dtype=torch.long))  # (C,)
+        self.grow_callbacks: list = []  # called with (old_rows, new_rows) after E grows
+
+    @property
+    def num_voxels(self) -> int:
+        return int(self.voxel_keys.numel())
+
+    @property
+    def num_corners(self) -> int:
+        return int(self.corner_keys.numel())
+
+    @property
+    def capacity(self) -> int:
+        return int(self.embeddings.shape[0])
+
+    def voxel_coords(self) -> torch.Tensor:
+        """(V, 3) integer coordinates of the allocated voxels."""
+        return unpack_keys(self.voxel_keys)
+
+    def _ensure_capacity(self, rows_needed: int) -> None:
+        if rows_needed <= self.capacity:
+            return
+        if rows_needed > self.max_capacity:
+            raise GridCapacityError(
+                f"voxel grid needs {rows_needed} embedding rows but field.max_capacity is {self.max_capacity}; "
+                "raise field.max_capacity or field.voxel_size"
+            )
+        new_cap = min(max(rows_needed, 2 * self.capacity), self.max_capacity)
+        old = self.capacity
+        extra = torch.randn(new_cap - old, self.embed_dim, device=self.embeddings.device) * self.init_std
+        # Replace the data in place so optimisers keep referring to the same Parameter.
+        self.embeddings.data = torch.cat([self.embeddings.data, extra.to(self.embeddings.dtype)])
+        for callback in self.grow_callbacks:
+            callback(old, new_cap)
+
+    @torch.no_grad()
+    def allocate(self, points: torch.Tensor, dilation: int = 0) -> int:
+        """Allocate the voxels containing ``points`` (and their ``dilation``-neighbourhood).
+
+        Args:
+            points: (N, 3) world points in metres.
+            dilation: also allocate voxels within this many voxels (Chebyshev) of each hit voxel.
+        Returns:
+            number of newly allocated voxels.
+        """
+        if points.numel() == 0:
+            return 0
+        device = self.voxel_keys.device
+        coords = torch.floor(points.to(device) / self.voxel_size).long()
+        keys = torch.unique(pack_coords(coords))
+        if dilation > 0:
+            r = torch.arange(-dilation, dilation + 1, device=device)
+            offs = torch.stack(torch.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+            keys = torch.unique(pack_coords(unpack_keys(keys)[:, None, :] + offs).reshape(-1))
+        _, found = sorted_lookup(self.voxel_keys, keys)
+        new_keys = keys[~found]
+        if new_keys.numel() == 0:
+            return 0
+        # Corners of the new voxels; those not yet present get fresh embedding rows.
+        corner_keys = pack_coords(unpack_keys(new_keys)[:, None, :] + CORNER_OFFSETS.to(device))  # (Vn, 8)
+        uniq = torch.unique(corner_keys)
+        _, cfound = sorted_lookup(self.corner_keys, uniq)
+        fresh = uniq[~cfound]
+        first_row = self.num_corners
+        self._ensure_capacity(first_row + fresh.numel())
+        all_ckeys = torch.cat([self.corner_keys, fresh])
+        all_crows = torch.cat([self.corner_rows, torch.arange(first_row, first_row + fresh.numel(), device=device)])
+        order = torch.argsort(all_ckeys)
+        self.corner_keys = all_ckeys[order]
+        self.corner_rows = all_crows[order]
+        pos, _ = sorted_lookup(self.corner_keys, corner_keys)
+        new_rows = self.corner_rows[pos]  # (Vn, 8)
+        all_vkeys = torch.cat([self.voxel_keys, new_keys])
+        all_vrows = torch.cat([self.voxel_corner_rows, new_rows])
+        order = torch.argsort(all_vkeys)
+        self.voxel_keys = all_vkeys[order]
+        self.voxel_corner_rows = all_vrows[order]
+        return int(new_keys.numel())
+
+    def contains(self, points: torch.Tensor) -> torch.Tensor:
+        """(..., 3) world points -> (...) bool, True inside an allocated voxel."""
+        keys = pack_coords(torch.floor(points / self.voxel_size).long())
+        return sorted_lookup(self.voxel_keys, keys)[1]
+
+    def lookup(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Trilinearly interpolated embeddings at points inside allocated voxels.
+
+        Differentiable w.r.t. E and (through the trilinear weights) the points.
+
+        Args:
+            points: (P, 3) world points in metres.
+        Returns:
+            features (P_valid, Q) for the valid points, and valid (P,) bool mask.
+        """
+        g = points / self.voxel_size
+        base = torch.floor(g.detach())
+        keys = pack_coords(base.long())
+        pos, valid = sorted_lookup(self.voxel_keys, keys)
+        rows = self.voxel_corner_rows[pos[valid]]  # (Pv, 8)
+        frac = g[valid] - base[valid]
+        w = trilinear_weights(frac)  # (Pv, 8)
+        emb = self.embeddings[rows]  # (Pv, 8, Q)
+        return (emb * w[..., None]).sum(dim=1), valid
+
+    def load_sparse_state(self, state: dict[str, torch.Tensor]) -> None:
+        """Load a state dict whose tensors may be larger than this (fresh) grid's."""
+        self.embeddings.data = state["embeddings"].clone()
+        for name in ("voxel_keys", "voxel_corner_rows", "corner_keys", "corner_rows"):
+            setattr(self, name, state[name].clone())

@@ -1,0 +1,98 @@
+"""Mapping: joint optimisation of E, Θd, Θs and the window's poses over current frame + keyframes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from tivne.field.networks import TimeVaryingField
+from tivne.geometry import se3_exp
+from tivne.keyframes import View
+from tivne.losses import LossWeights, slam_loss
+from tivne.rendering import RenderConfig, gather_rays, render_rays
+from tivne.sampling import PixelPool, PixelSampler, depth_guided_depths
+
+
+@dataclass(frozen=True)
+class MappingConfig:
+    """iters: steps per mapping round; first_iters: steps on the first frame alone.
+    rays: rays per step, ``current_share`` of them from the current frame, the rest split over the
+    picked keyframes. every: map every n-th frame. optimize_poses: refine the window's poses
+    (never the first frame's)."""
+
+    iters: int = 20
+    first_iters: int = 200
+    rays: int = 1024
+    current_share: float = 0.5
+    lr_embeddings: float = 1e-2
+    lr_decoder: float = 5e-3
+    lr_pose: float = 5e-4
+    optimize_poses: bool = True
+    every: int = 1
+
+
+class Mapper:
+    """Owns the map optimiser (persistent Adam over E and both MLPs, per-group learning rates)."""
+
+    def __init__(self, field: TimeVaryingField, cfg: MappingConfig) -> None:
+        self.field = field
+        self.cfg = cfg
+        decoder = [p for n, p in field.named_parameters() if not n.startswith("grid.")]
+        self.optimizer = torch.optim.Adam(
+            [{"params": [field.grid.embeddings], "lr": cfg.lr_embeddings}, {"params": decoder, "lr": cfg.lr_decoder}]
+        )
+        field.grid.grow_callbacks.append(self._pad_embedding_state)
+
+    def _pad_embedding_state(self, old_rows: int, new_rows: int) -> None:
+        """Keep Adam's moments aligned with E after the grid grows (new rows start from zero moments)."""
+        state = self.optimizer.state.get(self.field.grid.embeddings)
+        if not state:
+            return
+        for key in ("exp_avg", "exp_avg_sq"):
+            moment = state[key]
+            state[key] = torch.cat([moment, moment.new_zeros(new_rows - old_rows, moment.shape[1])])
+
+    def run(
+        self,
+        views: list[View],
+        fixed: list[bool],
+        iters: int,
+        K: torch.Tensor,
+        sampler: PixelSampler,
+        render: RenderConfig,
+        weights: LossWeights,
+        generator: torch.Generator | None = None,
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """Optimise the map on ``views`` (views[0] is the current frame).
+
+        Returns the refined (V, 4, 4) poses (unchanged where ``fixed``) and the last step's loss terms.
+        """
+        cfg = self.cfg
+        base = torch.stack([v.pose.detach() for v in views])
+        movable = torch.tensor([not f for f in fixed], device=base.device, dtype=base.dtype)[:, None]
+        pose_delta = torch.zeros(len(views), 6, device=base.device, dtype=base.dtype, requires_grad=cfg.optimize_poses)
+        pose_opt = torch.optim.Adam([pose_delta], lr=cfg.lr_pose) if cfg.optimize_poses and movable.any() else None
+        pools = [PixelPool.from_masks(v.depth > 0, v.dynamic) for v in views]
+        images = [(v.rgb, v.depth, v.dynamic, v.tau) for v in views]
+        n_cur = cfg.rays if len(views) == 1 else int(cfg.rays * cfg.current_share)
+        n_other = (cfg.rays - n_cur) // max(len(views) - 1, 1)
+        counts = [n_cur] + [n_other] * (len(views) - 1)
+        terms: dict[str, torch.Tensor] = {}
+        for _ in range(iters):
+            poses = base @ se3_exp(pose_delta * movable) if pose_opt is not None else base
+            pixels = [sampler(pool, n, generator) for pool, n in zip(pools, counts)]
+            rays = gather_rays(pixels, images, poses, K)
+            z = depth_guided_depths(rays.depth, render.truncation, render.n_band, render.n_free, render.band, render.near, True, generator)
+            rendered, outputs = render_rays(self.field, rays, z, render.truncation)
+            loss, terms = slam_loss(rays, z, rendered, outputs, render.truncation, weights)
+            self.optimizer.zero_grad(set_to_none=True)
+            if pose_opt is not None:
+                pose_opt.zero_grad(set_to_none=True)
+            loss.backward()
+            self.optimizer.step()
+            if pose_opt is not None:
+                pose_opt.step()
+        with torch.no_grad():
+            final = base @ se3_exp(pose_delta * movable) if pose_opt is not None else base
+        return final.detach(), {k: float(v) for k, v in terms.items()}
