@@ -1,0 +1,66 @@
+"""Saving and loading a finished (or interrupted) run: the field, its construction arguments and the trajectory."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from tivne.field.networks import TimeVaryingField
+
+CHECKPOINT_NAME = "slam.pt"
+
+
+def save_checkpoint(
+    path: str | Path,
+    field: TimeVaryingField,
+    field_kwargs: dict[str, Any],
+    timestamps: list[float],
+    poses: torch.Tensor,
+    t0: float,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write the field and trajectory atomically (tmp file + rename).
+
+    Args:
+        field_kwargs: the keyword arguments the field was built with (rebuilds it on load).
+        timestamps: (N,) seconds of the processed frames; poses: (N, 4, 4) c2w; t0: the time of τ = 0.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "format": 1,
+        "field_kwargs": dict(field_kwargs),
+        "field_state": {k: v.detach().cpu() for k, v in field.state_dict().items()},
+        "timestamps": [float(t) for t in timestamps],
+        "poses": poses.detach().cpu().double(),
+        "t0": float(t0),
+        "extra": extra or {},
+    }
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+    return path
+
+
+def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tuple[TimeVaryingField, dict[str, Any]]:
+    """Rebuild the field from a checkpoint; returns (field in eval mode, payload without the state)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: checkpoint not found")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # a truncated or foreign file
+        raise ValueError(f"{path}: not a readable TivNe checkpoint ({type(exc).__name__})") from None
+    field = TimeVaryingField(**payload["field_kwargs"])
+    field.grid.load_sparse_state(payload["field_state"])
+    field.load_state_dict(payload["field_state"])
+    field.to(device).eval()
+    meta = {k: v for k, v in payload.items() if k != "field_state"}
+    return field, meta
+
+
+def time_to_tau(timestamp: float, t0: float, time_scale: float) -> float:
+    """τ = (t - t0) · time_scale (τ = 0 on the first frame; never normalised by sequence length)."""
+    return (float(timestamp) - float(t0)) * float(time_scale)
