@@ -109,6 +109,16 @@ def invert_pose(T: torch.Tensor) -> torch.Tensor:
     return out
 
 
+def _grad_only_if_needed(x: torch.Tensor) -> torch.set_grad_enabled:
+    """Grad mode for a kornia Lie-group call on ``x``.
+
+    kornia's Lie groups store a constant input as an ``nn.Parameter``, so without this a result
+    computed from a tensor that does not require grad would require grad (building graphs that are
+    never used, and refusing ``.numpy()``).
+    """
+    return torch.set_grad_enabled(torch.is_grad_enabled() and x.requires_grad)
+
+
 def se3_exp(xi: torch.Tensor) -> torch.Tensor:
     """SE(3) exponential map.
 
@@ -119,7 +129,8 @@ def se3_exp(xi: torch.Tensor) -> torch.Tensor:
         (..., 4, 4) rigid transforms. Differentiable with finite gradients at xi = 0.
     """
     lead = xi.shape[:-1]
-    T = Se3.exp(xi.reshape(-1, 6)).matrix()
+    with _grad_only_if_needed(xi):
+        T = Se3.exp(xi.reshape(-1, 6)).matrix()
     return T.reshape(*lead, 4, 4)
 
 
@@ -127,9 +138,11 @@ def se3_log(T: torch.Tensor) -> torch.Tensor:
     """SE(3) logarithm (..., 4, 4) -> (..., 6) twist (v, w); inverse of :func:`se3_exp`."""
     lead = T.shape[:-2]
     Tf = T.reshape(-1, 4, 4)
-    so3 = So3.from_matrix(Tf[:, :3, :3])
-    se3 = Se3(so3, Tf[:, :3, 3])
-    return se3.log().reshape(*lead, 6)
+    with _grad_only_if_needed(T):
+        so3 = So3.from_matrix(Tf[:, :3, :3])
+        se3 = Se3(so3, Tf[:, :3, 3])
+        xi = se3.log()
+    return xi.reshape(*lead, 6)
 
 
 def compose(*poses: torch.Tensor) -> torch.Tensor:
