@@ -1,0 +1,356 @@
+"""TUM RGB-D and Bonn RGB-D Dynamic sequences (same on-disk layout).
+
+Layout::
+
+    <root>/rgb.txt          "timestamp rgb/<file>.png" lines, '#' comments
+    <root>/depth.txt        "timestamp depth/<file>.png"
+    <root>/groundtruth.txt  "timestamp tx ty tz qx qy qz qw" (optional)
+    <root>/rgb/  <root>/depth/   8-bit colour and 16-bit depth PNGs (depth / 5000 = metres)
+
+Frames are the colour images that have a depth image within ``max_time_diff`` (TUM associate.py
+semantics: all pairs closer than the limit, accepted greedily by increasing difference, each image
+used once); a frame's timestamp is its colour timestamp. Ground truth is interpolated at the frame
+timestamps (SLERP rotation, linear translation) between the two bracketing GT poses; frames before
+the first / after the last GT pose or inside a GT gap longer than ``gt_max_gap`` get ``gt_pose=None``
+and ``gt_valid[i] = False``.
+
+Distortion: freiburg1/2 and Bonn have radial-tangential distortion. With ``undistort=True``
+(default) colour and depth are remapped with the same OpenCV undistortion map onto a pinhole camera
+with the *same* K (colour bilinear, depth and masks nearest-neighbour so no depths are mixed), which
+keeps the 1:1 colour/depth pixel registration. Pixels that map from outside the image become black
+/ invalid. freiburg3 has zero distortion, so nothing is done there.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from data_modules.frame import DatasetError, Frame, Intrinsics
+from data_modules.io import (
+    check_same_size,
+    check_size,
+    finite_float,
+    read_depth_png,
+    read_pose_table,
+    read_rgb,
+    read_table,
+    require_dir,
+)
+from data_modules.sequence import SequenceDataset, check_monotonic_timestamps
+from tivne.geometry import matrix_to_quat, quat_to_matrix
+
+log = logging.getLogger(__name__)
+
+# fx, fy, cx, cy, (k1, k2, p1, p2, k3) — dataset-formats.md §3.3 / §4.2
+CAMERAS: dict[str, tuple[tuple[float, float, float, float], tuple[float, ...]]] = {
+    "fr1": ((517.3, 516.5, 318.6, 255.3), (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)),
+    "fr2": ((520.9, 521.0, 325.1, 249.7), (0.2312, -0.7849, -0.0033, -0.0001, 0.9172)),
+    "fr3": ((535.4, 539.2, 320.1, 247.6), (0.0, 0.0, 0.0, 0.0, 0.0)),
+    "ros": ((525.0, 525.0, 319.5, 239.5), (0.0, 0.0, 0.0, 0.0, 0.0)),
+    "bonn": ((542.822841, 542.576870, 315.593520, 237.756098), (0.039903, -0.099343, -0.000730, -0.000144, 0.0)),
+}
+
+# Bonn marker-to-camera correction, dataset-formats.md §4.3: T_cam = T_ROS @ T_gt @ T_ROS @ T_M
+T_ROS = np.array([[-1, 0, 0, 0], [0, 0, 1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=np.float64)
+T_M_RAW = np.array(
+    [
+        [1.0157, 0.1828, -0.2389, 0.0113],
+        [0.0009, -0.8431, -0.6413, -0.0098],
+        [-0.3009, 0.6147, -0.8085, 0.0111],
+        [0.0, 0.0, 0.0, 1.0],
+    ],
+    dtype=np.float64,
+)
+
+
+def project_to_rotation(T: np.ndarray) -> np.ndarray:
+    """Replace the 3x3 block of a 4x4 by its nearest rotation (SVD, det +1); keep the translation."""
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    out = T.copy()
+    out[:3, :3] = R
+    return out
+
+
+T_M = project_to_rotation(T_M_RAW)
+
+
+def bonn_marker_to_camera(T_gt: torch.Tensor) -> torch.Tensor:
+    """Bonn groundtruth (marker body) poses (..., 4, 4) -> camera-to-world poses.
+
+    ``T_cam = T_ros @ T_gt @ T_ros @ T_m`` with T_m's rotation block projected to SO(3).
+    """
+    ros = torch.as_tensor(T_ROS, dtype=T_gt.dtype)
+    tm = torch.as_tensor(T_M, dtype=T_gt.dtype)
+    return ros @ T_gt @ ros @ tm
+
+
+def associate(first: np.ndarray, second: np.ndarray, max_difference: float, offset: float = 0.0) -> list[tuple[int, int]]:
+    """TUM ``associate.py``: pairs (i, j) with |first[i] - (second[j] + offset)| < max_difference.
+
+    Candidates are accepted greedily by increasing difference, each index at most once; the
+    result is sorted by ``i``.
+    """
+    first = np.asarray(first, dtype=np.float64)
+    second = np.asarray(second, dtype=np.float64) + offset
+    order = np.argsort(second, kind="stable")
+    s_sorted = second[order]
+    cands = []
+    for i, a in enumerate(first):
+        lo = np.searchsorted(s_sorted, a - max_difference, side="left")
+        hi = np.searchsorted(s_sorted, a + max_difference, side="right")
+        for k in range(lo, hi):
+            diff = abs(a - s_sorted[k])
+            if diff < max_difference:
+                cands.append((diff, i, int(order[k])))
+    cands.sort()
+    used_a: set[int] = set()
+    used_b: set[int] = set()
+    pairs = []
+    for _, i, j in cands:
+        if i not in used_a and j not in used_b:
+            used_a.add(i)
+            used_b.add(j)
+            pairs.append((i, j))
+    pairs.sort()
+    return pairs
+
+
+def interpolate_poses(
+    times: np.ndarray, poses: torch.Tensor, query: np.ndarray, max_gap: float | None = None
+) -> tuple[torch.Tensor, np.ndarray]:
+    """Poses at ``query`` times: SLERP rotation + linear translation between bracketing samples.
+
+    Args:
+        times: (N,) strictly increasing sample times.
+        poses: (N, 4, 4) float64 poses at ``times``.
+        query: (M,) times to evaluate.
+        max_gap: the bracketing samples may be at most this far apart (None = any); a query equal
+            to a sample time is always valid.
+    Returns:
+        (M, 4, 4) float64 poses (identity where invalid) and (M,) bool ``valid``: False outside
+        [times[0], times[-1]] or inside a longer gap. Nothing is extrapolated.
+    """
+    times = np.asarray(times, dtype=np.float64)
+    query = np.asarray(query, dtype=np.float64)
+    poses = torch.as_tensor(poses, dtype=torch.float64)
+    m = len(query)
+    out = torch.eye(4, dtype=torch.float64).repeat(m, 1, 1)
+    valid = np.zeros(m, dtype=bool)
+    if len(times) == 0 or m == 0:
+        return out, valid
+    quats = matrix_to_quat(poses[:, :3, :3]).numpy()
+    trans = poses[:, :3, 3].numpy()
+    # exact hits first
+    j = np.searchsorted(times, query, side="left")
+    for k, (t, jj) in enumerate(zip(query, j)):
+        if jj < len(times) and times[jj] == t:
+            out[k] = poses[jj]
+            valid[k] = True
+            continue
+        if jj == 0 or jj >= len(times):
+            continue  # outside coverage
+        a, b = jj - 1, jj
+        gap = times[b] - times[a]
+        if max_gap is not None and gap > max_gap:
+            continue
+        s = (t - times[a]) / gap
+        qa, qb = quats[a], quats[b]
+        dot = float(np.dot(qa, qb))
+        if dot < 0:
+            qb, dot = -qb, -dot
+        if dot > 0.9995:
+            q = qa + s * (qb - qa)
+        else:
+            theta = np.arccos(min(dot, 1.0))
+            q = (np.sin((1 - s) * theta) * qa + np.sin(s * theta) * qb) / np.sin(theta)
+        q = q / np.linalg.norm(q)
+        out[k, :3, :3] = quat_to_matrix(torch.from_numpy(q))
+        out[k, :3, 3] = torch.from_numpy((1 - s) * trans[a] + s * trans[b])
+        valid[k] = True
+    return out, valid
+
+
+def _list_file(root: Path, name: str) -> tuple[np.ndarray, list[Path], list[int], Path]:
+    path = root / name
+    rows = read_table(path, [("timestamp", finite_float), ("filename", str)], allow_extra=False, what=f"{name}")
+    ts = np.array([r.values[0] for r in rows], dtype=np.float64)
+    files = [root / r.values[1] for r in rows]
+    check_monotonic_timestamps(ts, str(path))
+    return ts, files, [r.lineno for r in rows], path
+
+
+class TUMSequence(SequenceDataset):
+    """A TUM RGB-D sequence folder (``rgbd_dataset_freiburgX_<name>``).
+
+    Args:
+        root: the extracted sequence folder.
+        camera: ``fr1``, ``fr2``, ``fr3`` (default), ``ros`` (525/319.5/239.5, no distortion),
+            ``bonn`` or ``custom`` (then give fx, fy, cx, cy).
+        fx, fy, cx, cy: override the camera's values (required for ``custom``).
+        distortion: override the (k1, k2, p1, p2, k3) coefficients.
+        width, height: image size (default: read from the first colour image).
+        undistort: remap colour/depth/masks with the distortion model onto the same K.
+        depth_scale: raw depth value per metre (5000).
+        max_time_diff: rgb<->depth association limit in seconds (0.02).
+        gt_max_gap: longest GT gap [s] to interpolate across (0.1); None = any.
+        gt_file: ground-truth file name relative to root (``groundtruth.txt``), if present.
+        name: sequence name (default: the root folder's name).
+    """
+
+    default_camera = "fr3"
+
+    def __init__(
+        self,
+        root: str | Path,
+        camera: str | None = None,
+        fx: float | None = None,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+        distortion: list[float] | None = None,
+        width: int | None = None,
+        height: int | None = None,
+        undistort: bool = True,
+        depth_scale: float = 5000.0,
+        max_time_diff: float = 0.02,
+        gt_max_gap: float | None = 0.1,
+        gt_file: str = "groundtruth.txt",
+        name: str | None = None,
+    ) -> None:
+        self.root = require_dir(root, f"{type(self).__name__} sequence folder")
+        self.name = name or self.root.name
+        camera = camera or self.default_camera
+        if camera != "custom" and camera not in CAMERAS:
+            raise DatasetError("dataset.camera", f"unknown camera {camera!r} (use {', '.join(CAMERAS)} or custom)")
+        base, dist = CAMERAS.get(camera, ((None, None, None, None), (0.0,) * 5))
+        vals = [v if v is not None else b for v, b in zip((fx, fy, cx, cy), base)]
+        if any(v is None for v in vals):
+            raise DatasetError("dataset", "camera=custom needs fx, fy, cx and cy")
+        if distortion is not None:
+            dist = tuple(float(d) for d in distortion)
+            if len(dist) not in (4, 5):
+                raise DatasetError("dataset.distortion", f"expected 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got {len(dist)}")
+        self.camera = camera
+        self.distortion = np.array(dist, dtype=np.float64)
+        self.depth_scale = float(depth_scale)
+        if not self.depth_scale > 0:
+            raise DatasetError("dataset.depth_scale", f"must be > 0, got {depth_scale}")
+
+        rgb_ts, rgb_files, rgb_lines, rgb_list = _list_file(self.root, "rgb.txt")
+        depth_ts, depth_files, depth_lines, depth_list = _list_file(self.root, "depth.txt")
+        pairs = associate(rgb_ts, depth_ts, max_time_diff)
+        if not pairs:
+            raise DatasetError(rgb_list, f"no colour image has a depth image within {max_time_diff} s in depth.txt")
+        self.dropped_rgb = len(rgb_ts) - len(pairs)
+        if self.dropped_rgb:
+            log.info("%s: %d colour images without depth within %.3f s skipped", self.root, self.dropped_rgb, max_time_diff)
+        self.rgb_paths = [rgb_files[i] for i, _ in pairs]
+        self.depth_paths = [depth_files[j] for _, j in pairs]
+        for (i, j) in pairs:
+            if not rgb_files[i].is_file():
+                raise DatasetError(rgb_files[i], f"missing (listed in {rgb_list.name}:{rgb_lines[i]})")
+            if not depth_files[j].is_file():
+                raise DatasetError(depth_files[j], f"missing (listed in {depth_list.name}:{depth_lines[j]})")
+        self.timestamps = check_monotonic_timestamps([rgb_ts[i] for i, _ in pairs], str(rgb_list))
+        self.depth_timestamps = np.array([depth_ts[j] for _, j in pairs], dtype=np.float64)
+
+        if width is None or height is None:
+            h, w = read_rgb(self.rgb_paths[0]).shape[:2]
+            width, height = width or w, height or h
+        self.intrinsics = Intrinsics(float(vals[0]), float(vals[1]), float(vals[2]), float(vals[3]), int(width), int(height))
+
+        self._maps = None
+        if undistort and np.any(self.distortion != 0):
+            K = self.intrinsics.K(dtype=torch.float64).numpy()
+            size = (self.intrinsics.width, self.intrinsics.height)
+            self._maps = cv2.initUndistortRectifyMap(K, self.distortion, None, K, size, cv2.CV_32FC1)
+        self.undistort = self._maps is not None
+
+        # ground truth
+        self.gt_path = self.root / gt_file
+        self.has_gt_poses = self.gt_path.is_file()
+        self.gt_poses: list[torch.Tensor | None] = [None] * len(self.timestamps)
+        self.gt_valid = np.zeros(len(self.timestamps), dtype=bool)
+        if self.has_gt_poses:
+            gt_ts, gt_poses = read_pose_table(self.gt_path, key="timestamp", what="ground-truth file")
+            poses, valid = interpolate_poses(gt_ts, gt_poses, self.timestamps, gt_max_gap)
+            poses = self.convert_gt(poses)
+            self.gt_valid = valid
+            self.gt_poses = [poses[k] if valid[k] else None for k in range(len(valid))]
+            if not valid.all():
+                log.info("%s: %d of %d frames have no ground truth (outside coverage or gap)", self.root, int((~valid).sum()), len(valid))
+
+    def convert_gt(self, poses: torch.Tensor) -> torch.Tensor:
+        """Hook: map interpolated groundtruth poses to camera-to-world (identity for TUM)."""
+        return poses
+
+    def _remap(self, img: np.ndarray, nearest: bool) -> np.ndarray:
+        if self._maps is None:
+            return img
+        interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
+        return cv2.remap(img, self._maps[0], self._maps[1], interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+    def camera_pose(self, i: int) -> torch.Tensor:
+        """GT camera-to-world pose (4, 4) float64 of frame ``i`` without reading images."""
+        pose = self.gt_poses[i]
+        if pose is None:
+            raise DatasetError(f"{self.name}: frame {i}", "has no ground-truth pose (outside the GT coverage)")
+        return pose.clone()
+
+    def load_frame(self, i: int) -> Frame:
+        rgb = read_rgb(self.rgb_paths[i])
+        depth = read_depth_png(self.depth_paths[i], self.depth_scale)
+        check_same_size(rgb, depth, self.rgb_paths[i], self.depth_paths[i])
+        check_size(rgb, self.intrinsics, self.rgb_paths[i], "colour image")
+        rgb = np.clip(self._remap(rgb, nearest=False), 0.0, 1.0)
+        depth = self._remap(depth, nearest=True)
+        pose = self.gt_poses[i]
+        frame = Frame(
+            index=i,
+            timestamp=float(self.timestamps[i]),
+            rgb=torch.from_numpy(np.ascontiguousarray(rgb, dtype=np.float32)),
+            depth=torch.from_numpy(np.ascontiguousarray(depth, dtype=np.float32)),
+            mask=None,
+            gt_pose=None if pose is None else pose.clone(),
+        )
+        return frame.validate(self.rgb_paths[i], self.intrinsics)
+
+    def describe(self) -> dict[str, object]:
+        d = super().describe()
+        d.update(gt_valid_frames=int(self.gt_valid.sum()), camera=self.camera, undistort=self.undistort, dropped_rgb=self.dropped_rgb)
+        return d
+
+
+class BonnSequence(TUMSequence):
+    """A Bonn RGB-D Dynamic sequence folder (``rgbd_bonn_<name>``): TUM layout, Bonn intrinsics.
+
+    Extra args:
+        marker_to_camera: convert the mocap-marker groundtruth to camera poses with
+            ``T_ros @ T_gt @ T_ros @ T_m`` (dataset-formats.md §4.3; T_m's rotation block projected to
+            SO(3), translation kept). Default True. The marker pose is interpolated first.
+    Other args as :class:`TUMSequence` (``camera`` defaults to ``bonn``).
+    """
+
+    default_camera = "bonn"
+
+    def __init__(self, root: str | Path, marker_to_camera: bool = True, **kwargs) -> None:
+        self.marker_to_camera = bool(marker_to_camera)
+        super().__init__(root, **kwargs)
+        log.info("%s: Bonn marker-to-camera correction %s", self.root, "applied" if self.marker_to_camera else "NOT applied")
+
+    def convert_gt(self, poses: torch.Tensor) -> torch.Tensor:
+        return bonn_marker_to_camera(poses) if self.marker_to_camera else poses
+
+    def describe(self) -> dict[str, object]:
+        d = super().describe()
+        d["marker_to_camera"] = self.marker_to_camera
+        return d
