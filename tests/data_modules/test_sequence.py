@@ -1,0 +1,162 @@
+"""The data contract: Frame validation, Intrinsics, SequenceView and SequenceDataModule."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from data_modules.frame import DatasetError, Frame, Intrinsics
+from data_modules.sequence import SequenceDataModule, SequenceDataset, SequenceView, check_monotonic_timestamps
+
+
+class _Ramp(SequenceDataset):
+    """In-memory sequence: frame i has depth = 1 + i + column / 10, a dynamic left half and pose x = i."""
+
+    def __init__(self, n: int = 10, width: int = 8, height: int = 6, masks: bool = True) -> None:
+        self.name = "ramp"
+        self.intrinsics = Intrinsics(10.0, 10.0, (width - 1) / 2, (height - 1) / 2, width, height)
+        self.timestamps = np.arange(n) * 0.1 + 5.0
+        self.has_gt_poses = True
+        self.has_masks = masks
+        self.reads: list[int] = []
+
+    def load_frame(self, i: int) -> Frame:
+        self.reads.append(i)
+        h, w = self.intrinsics.height, self.intrinsics.width
+        depth = (1.0 + i + torch.arange(w, dtype=torch.float32) / 10).expand(h, w).contiguous()
+        rgb = torch.rand(h, w, 3, generator=torch.Generator().manual_seed(i))
+        mask = None
+        if self.has_masks:
+            mask = torch.zeros(h, w, dtype=torch.bool)
+            mask[:, : w // 2] = True
+        pose = torch.eye(4, dtype=torch.float64)
+        pose[0, 3] = i
+        return Frame(i, float(self.timestamps[i]), rgb, depth, mask, pose).validate(f"ramp {i}", self.intrinsics)
+
+
+def _frame(h=4, w=5) -> Frame:
+    return Frame(0, 0.0, torch.full((h, w, 3), 0.5), torch.ones(h, w), torch.zeros(h, w, dtype=torch.bool), torch.eye(4))
+
+
+def test_valid_frame_passes():
+    f = _frame()
+    assert f.validate("x") is f
+    assert (f.height, f.width) == (4, 5)
+    f.validate("x", Intrinsics(5, 5, 2, 1.5, 5, 4))
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(depth=torch.ones(4, 5, 1)), "depth must be"),
+        (dict(rgb=torch.full((4, 5), 0.5)), "rgb shape"),
+        (dict(rgb=torch.full((4, 6, 3), 0.5)), "does not match depth"),
+        (dict(depth=torch.ones(4, 5, dtype=torch.float64)), "float32"),
+        (dict(depth=torch.where(torch.eye(4, 5, dtype=torch.bool), float("nan"), 1.0)), "NaN"),
+        (dict(depth=-torch.ones(4, 5)), "negative"),
+        (dict(rgb=torch.full((4, 5, 3), 1.5)), r"\[0, 1\]"),
+        (dict(mask=torch.zeros(4, 5, dtype=torch.uint8)), "mask"),
+        (dict(mask=torch.zeros(3, 5, dtype=torch.bool)), "mask"),
+        (dict(gt_pose=torch.eye(3)), "gt_pose"),
+        (dict(gt_pose=torch.full((4, 4), float("inf"))), "gt_pose"),
+        (dict(timestamp=float("nan")), "timestamp"),
+    ],
+)
+def test_validate_rejects_bad_frames(change, message):
+    f = _frame()
+    for k, v in change.items():
+        setattr(f, k, v)
+    with pytest.raises(DatasetError, match=message) as err:
+        f.validate("frames/0001.png")
+    assert str(err.value).startswith("frames/0001.png: ") and "\n" not in str(err.value)
+
+
+def test_validate_checks_intrinsics_size():
+    with pytest.raises(DatasetError, match="intrinsics are for 6x4"):
+        _frame().validate("x", Intrinsics(5, 5, 2, 1.5, 6, 4))
+
+
+def test_intrinsics_checks_and_resize():
+    with pytest.raises(DatasetError, match="focal"):
+        Intrinsics(0, 1, 0, 0, 4, 4)
+    with pytest.raises(DatasetError, match="finite"):
+        Intrinsics(1, 1, float("nan"), 0, 4, 4)
+    with pytest.raises(DatasetError, match="size"):
+        Intrinsics(1, 1, 0, 0, 0, 4)
+    K = Intrinsics(500.0, 400.0, 319.5, 239.5, 640, 480)
+    half = K.resized(320, 240)
+    assert (half.fx, half.fy, half.cx, half.cy, half.width, half.height) == (250.0, 200.0, 159.5, 119.5, 320, 240)
+    assert K.resized(640, 480) == K
+    assert torch.equal(K.K(), torch.tensor([[500.0, 0, 319.5], [0, 400.0, 239.5], [0, 0, 1]]))
+    assert K.as_dict()["width"] == 640
+
+
+def test_check_monotonic_timestamps():
+    assert check_monotonic_timestamps([0.0, 0.1, 0.3], "t").dtype == np.float64
+    with pytest.raises(DatasetError, match="not strictly increasing at entry 2"):
+        check_monotonic_timestamps([0.0, 0.1, 0.1], "assoc.txt")
+    with pytest.raises(DatasetError, match="not strictly increasing"):
+        check_monotonic_timestamps([0.0, 0.2, 0.1], "assoc.txt")
+    with pytest.raises(DatasetError, match="not finite"):
+        check_monotonic_timestamps([0.0, float("nan")], "assoc.txt")
+    with pytest.raises(DatasetError, match="1-D"):
+        check_monotonic_timestamps([[0.0, 1.0]], "assoc.txt")
+
+
+def test_view_stride_and_max_frames():
+    base = _Ramp(10)
+    view = SequenceView(base, stride=3, max_frames=3)
+    assert len(view) == 3 and list(view.source_indices) == [0, 3, 6]
+    assert np.allclose(view.timestamps, [5.0, 5.3, 5.6])
+    assert [view[i].index for i in range(3)] == [0, 3, 6]
+    assert view.name == "ramp" and view.has_gt_poses and view.has_masks and view.intrinsics == base.intrinsics
+    assert len(SequenceView(base, stride=4)) == 3
+    assert view.describe()["frames"] == 3
+    with pytest.raises(IndexError):
+        view[3]
+    for kwargs, param in (
+        (dict(stride=0), "data.stride"),
+        (dict(max_frames=0), "data.max_frames"),
+        (dict(depth_min=1.0, depth_max=0.5), "data.depth_max"),
+        (dict(resize=[10]), "data.resize"),
+        (dict(resize=[0, 4]), "data.resize"),
+    ):
+        with pytest.raises(DatasetError, match=param):
+            SequenceView(base, **kwargs)
+
+
+def test_view_resize_scales_intrinsics_and_uses_nearest_mask():
+    base = _Ramp(2, width=8, height=6)
+    view = SequenceView(base, resize=[4, 3])
+    assert view.intrinsics == base.intrinsics.resized(4, 3)
+    f = view[1]
+    f.validate("resized", view.intrinsics)
+    assert f.rgb.shape == (3, 4, 3) and f.depth.shape == (3, 4) and f.mask.shape == (3, 4)
+    assert f.mask.dtype == torch.bool and f.mask[:, :2].all() and not f.mask[:, 2:].any()
+    # Nearest depth: every output value is one of the input values (no mixing across edges).
+    src = base[1].depth
+    assert all(bool((src == v).any()) for v in f.depth.flatten())
+    assert torch.allclose(f.rgb.mean(), base[1].rgb.mean(), atol=1e-5)  # area averaging keeps the mean
+
+
+def test_view_depth_truncation():
+    base = _Ramp(3, width=10)
+    view = SequenceView(base, depth_min=1.25, depth_max=1.65)
+    d = view[0].depth[0]  # 1.0 .. 1.9
+    assert torch.equal(d == 0, (base[0].depth[0] < 1.25) | (base[0].depth[0] > 1.65))
+    assert (d[d > 0] >= 1.25).all() and (d <= 1.65).all()
+    assert torch.equal(SequenceView(base)[0].depth, base[0].depth)
+
+
+def test_datamodule_yields_frames_in_order():
+    base = _Ramp(7, masks=False)
+    dm = SequenceDataModule(base, stride=2, max_frames=3)
+    assert dm.intrinsics == base.intrinsics
+    frames = list(dm.train_dataloader())
+    assert all(isinstance(f, Frame) for f in frames)
+    assert [f.index for f in frames] == [0, 2, 4]
+    assert [f.timestamp for f in frames] == pytest.approx([5.0, 5.2, 5.4])
+    assert frames[0].depth.shape == (6, 8) and frames[0].mask is None  # batch size 1, not collated
+    assert [float(f.gt_pose[0, 3]) for f in frames] == [0.0, 2.0, 4.0]
+    assert list(dm.train_dataloader())[1].index == 2  # re-iterable, no shuffling
