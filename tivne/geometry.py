@@ -119,6 +119,22 @@ def _grad_only_if_needed(x: torch.Tensor) -> torch.set_grad_enabled:
     return torch.set_grad_enabled(torch.is_grad_enabled() and x.requires_grad)
 
 
+def orthonormalize_pose(T: torch.Tensor) -> torch.Tensor:
+    """Project the rotation block of (..., 4, 4) transforms onto SO(3) (SVD, nearest in Frobenius norm).
+
+    Pose chains such as T1 · T2⁻¹ · T1 (with the inverse taken as Rᵀ) double a rotation's
+    non-orthogonality every time; projecting stored poses keeps float32 round-off from compounding.
+    """
+    U, _, Vh = torch.linalg.svd(T[..., :3, :3].double())
+    d = torch.sign(torch.det(U @ Vh))
+    U = torch.cat([U[..., :, :2], U[..., :, 2:] * d[..., None, None]], dim=-1)
+    out = T.clone()
+    out[..., :3, :3] = (U @ Vh).to(T.dtype)
+    out[..., 3, :3] = 0
+    out[..., 3, 3] = 1
+    return out
+
+
 def se3_exp(xi: torch.Tensor) -> torch.Tensor:
     """SE(3) exponential map.
 
@@ -129,9 +145,10 @@ def se3_exp(xi: torch.Tensor) -> torch.Tensor:
         (..., 4, 4) rigid transforms. Differentiable with finite gradients at xi = 0.
     """
     lead = xi.shape[:-1]
+    # float64 inside: the small-angle series terms lose precision to cancellation in float32.
     with _grad_only_if_needed(xi):
-        T = Se3.exp(xi.reshape(-1, 6)).matrix()
-    return T.reshape(*lead, 4, 4)
+        T = Se3.exp(xi.reshape(-1, 6).double()).matrix()
+    return T.reshape(*lead, 4, 4).to(xi.dtype)
 
 
 def se3_log(T: torch.Tensor) -> torch.Tensor:

@@ -14,7 +14,7 @@ from tivne.rendering import RayBundle, RenderedRays
 class LossWeights:
     """λ of each term (Vox-Fusion Replica values for the first four)."""
 
-    color: float = 0.5
+    color: float = 5.0
     depth: float = 1.0
     free_space: float = 10.0
     sdf: float = 5000.0

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import torch
 
 from tivne.field.networks import TimeVaryingField
-from tivne.geometry import se3_exp
+from tivne.geometry import orthonormalize_pose, se3_exp
 from tivne.keyframes import View
 from tivne.losses import LossWeights, slam_loss
 from tivne.rendering import RenderConfig, gather_rays, render_rays
@@ -79,6 +79,7 @@ class Mapper:
         n_other = (cfg.rays - n_cur) // max(len(views) - 1, 1)
         counts = [n_cur] + [n_other] * (len(views) - 1)
         terms: dict[str, torch.Tensor] = {}
+        skipped = 0
         for _ in range(iters):
             poses = base @ se3_exp(pose_delta * movable) if pose_opt is not None else base
             pixels = [sampler(pool, n, generator) for pool, n in zip(pools, counts)]
@@ -86,13 +87,21 @@ class Mapper:
             z = depth_guided_depths(rays.depth, render.truncation, render.n_band, render.n_free, render.band, render.near, True, generator)
             rendered, outputs = render_rays(self.field, rays, z, render.truncation)
             loss, terms = slam_loss(rays, z, rendered, outputs, render.truncation, weights)
+            if not torch.isfinite(loss) or not loss.requires_grad:  # never step the map on a broken batch
+                skipped += 1
+                continue
             self.optimizer.zero_grad(set_to_none=True)
             if pose_opt is not None:
                 pose_opt.zero_grad(set_to_none=True)
             loss.backward()
+            if not all(torch.isfinite(p.grad).all() for g in self.optimizer.param_groups for p in g["params"] if p.grad is not None):
+                skipped += 1
+                continue
             self.optimizer.step()
             if pose_opt is not None:
                 pose_opt.step()
         with torch.no_grad():
             final = base @ se3_exp(pose_delta * movable) if pose_opt is not None else base
-        return final.detach(), {k: float(v) for k, v in terms.items()}
+        stats = {k: float(v) for k, v in terms.items()}
+        stats["skipped_steps"] = float(skipped)
+        return orthonormalize_pose(final.detach()), stats

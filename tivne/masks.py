@@ -3,15 +3,23 @@
 Every provider is called once per frame before tracking (``context=None``); providers that need the
 tracked pose and the map (``needs_tracked_pose``) are called after tracking instead, with a
 :class:`MaskContext`. The mask feeds the pixel sampler and the offset loss.
+
+Providers (config group ``masks``): ``dataset`` (masks shipped with the data), ``folder`` (one PNG per
+frame, nonzero = dynamic), ``none``, ``maskrcnn`` (:mod:`tivne.maskrcnn`, needs torchvision and a
+local weights file) and ``geometric`` (model-free: the observed frame against the map rendered at the
+tracked pose).
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
+from pathlib import Path
 
+import numpy as np
 import torch
 
-from data_modules.frame import Frame
+from data_modules.frame import DatasetError, Frame
 
 
 @dataclass
@@ -20,6 +28,7 @@ class MaskContext:
 
     field: the TimeVaryingField (frozen for this call). pose: (4, 4) tracked c2w. K: (3, 3).
     tau: the frame's normalised time. render: the RenderConfig. frame_number: position in the stream.
+    last_mapped_tau: the latest time the map was trained on (None: the caller does not say).
     """
 
     field: torch.nn.Module
@@ -28,6 +37,7 @@ class MaskContext:
     tau: float
     render: object
     frame_number: int
+    last_mapped_tau: float | None = None
 
 
 class MaskProvider:
@@ -56,3 +66,402 @@ class DatasetMasks(MaskProvider):
 
     def __call__(self, frame: Frame, context: MaskContext | None) -> torch.Tensor | None:
         return frame.mask
+
+
+# ------------------------------------------------------------------------------------------------
+# Mask folder: one PNG per frame
+# ------------------------------------------------------------------------------------------------
+
+
+def mask_file_name(index: int) -> str:
+    """The file name :mod:`tivne.make_masks` writes for frame ``index`` (e.g. ``000123.png``)."""
+    return f"{index:06d}.png"
+
+
+def read_mask_png(path: str | Path, size: tuple[int, int] | None = None) -> torch.Tensor:
+    """Read a mask PNG (nonzero = dynamic) as (H, W) bool; ``size`` = (width, height) to check.
+
+    Raises :class:`DatasetError` (one line naming the file) when it is unreadable or the wrong size.
+    """
+    import cv2
+
+    path = Path(path)
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise DatasetError(path, "mask is not a readable image")
+    if img.ndim == 3:
+        img = img.max(axis=2)
+    if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
+        raise DatasetError(path, f"mask is {img.shape[1]}x{img.shape[0]} but the frame is {size[0]}x{size[1]}")
+    return torch.from_numpy(np.ascontiguousarray(img != 0))
+
+
+def write_mask_png(path: str | Path, mask: torch.Tensor | np.ndarray) -> None:
+    """Write an (H, W) bool mask as an 8-bit PNG (255 = dynamic), atomically (tmp file + rename)."""
+    import cv2
+
+    path = Path(path)
+    arr = mask.detach().cpu().numpy() if isinstance(mask, torch.Tensor) else np.asarray(mask)
+    ok, buf = cv2.imencode(".png", (arr.astype(bool) * 255).astype(np.uint8))
+    if not ok:
+        raise OSError(f"{path}: could not encode the mask")
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(buf.tobytes())
+    tmp.replace(path)
+
+
+class FolderMasks(MaskProvider):
+    """Masks from a folder of PNGs (nonzero = dynamic), one per frame.
+
+    ``match='index'``: ``<root>/<index:06d>.png`` (what ``python -m tivne.make_masks`` writes; also
+    accepts any zero padding, e.g. ``123.png``). ``match='stem'``: the frame's source file stem, taken
+    from ``frame.name`` / ``frame.path`` / ``frame.source`` when the reader sets one, else the index.
+    ``missing='error'`` raises a one-line :class:`DatasetError` naming the file; ``'none'`` gives None.
+    """
+
+    name = "folder"
+
+    def __init__(self, root: str, match: str = "index", missing: str = "error", suffix: str = ".png") -> None:
+        if match not in ("index", "stem"):
+            raise ValueError(f"masks.match must be 'index' or 'stem', got {match!r}")
+        if missing not in ("error", "none"):
+            raise ValueError(f"masks.missing must be 'error' or 'none', got {missing!r}")
+        self.root = Path(str(root)).expanduser()
+        if not self.root.is_dir():
+            raise DatasetError(self.root, "mask folder not found")
+        self.match = match
+        self.missing = missing
+        self.suffix = suffix
+        self._by_stem: dict[str, Path] | None = None
+
+    def _stems(self) -> dict[str, Path]:
+        if self._by_stem is None:
+            self._by_stem = {p.stem: p for p in sorted(self.root.iterdir()) if p.suffix.lower() == self.suffix}
+        return self._by_stem
+
+    def path_for(self, frame: Frame) -> Path:
+        stems = self._stems()
+        if self.match == "stem":
+            for attr in ("name", "path", "source", "rgb_path"):
+                value = getattr(frame, attr, None)
+                if value:
+                    stem = Path(str(value)).stem
+                    if stem in stems:
+                        return stems[stem]
+        exact = self.root / mask_file_name(frame.index)
+        if exact.exists():
+            return exact
+        for stem, path in stems.items():  # other zero paddings
+            if stem.isdigit() and int(stem) == frame.index:
+                return path
+        return exact
+
+    def __call__(self, frame: Frame, context: MaskContext | None) -> torch.Tensor | None:
+        path = self.path_for(frame)
+        if not path.is_file():
+            if self.missing == "none":
+                return None
+            raise DatasetError(path, f"mask for frame {frame.index} not found")
+        return read_mask_png(path, (frame.width, frame.height)).to(frame.depth.device)
+
+
+# ------------------------------------------------------------------------------------------------
+# Geometric (model-free) masks: the frame against the map
+# ------------------------------------------------------------------------------------------------
+
+
+def depth_sigma(z: torch.Tensor) -> torch.Tensor:
+    """Kinect-like axial depth noise σ(z) = 0.0012 + 0.0019 (z - 0.4)² metres (Nguyen et al. 2012)."""
+    return 0.0012 + 0.0019 * (z - 0.4).pow(2)
+
+
+def residual_seeds(
+    observed: torch.Tensor,
+    rendered: torch.Tensor,
+    known: torch.Tensor,
+    abs_threshold: float = 0.08,
+    k_sigma: float = 6.0,
+    color_residual: torch.Tensor | None = None,
+    color_threshold: float | None = None,
+) -> torch.Tensor:
+    """Pixels where the observation is *in front of* the map: something now occupies space the map
+    saw as free. That sign marks the moving object's current pixels; the opposite sign (observed
+    behind the map) is disoccluded background where the object was and is left out.
+
+    Args:
+        observed, rendered: (H, W) depth in metres (0 = invalid observation).
+        known: (H, W) bool, the map has a surface along the ray (not newly observed space).
+        color_residual: optional (H, W) colour L1 (mean over channels); flags pixels whose depth
+            agrees with the map (|r| < threshold) but whose colour does not.
+    Returns:
+        (H, W) bool.
+    """
+    thr = torch.clamp(k_sigma * depth_sigma(observed), min=abs_threshold)
+    valid = known & (observed > 0)
+    seeds = valid & (rendered - observed > thr)
+    if color_residual is not None and color_threshold is not None and color_threshold > 0:
+        seeds = seeds | (valid & ((observed - rendered).abs() <= thr) & (color_residual > color_threshold))
+    return seeds
+
+
+def depth_segments(depth: np.ndarray, rel_jump: float = 0.04, abs_jump: float = 0.03) -> tuple[np.ndarray, int]:
+    """Label depth-continuous regions: neighbours join when |Δz| <= max(abs_jump, rel_jump · z).
+
+    Args:
+        depth: (H, W) metres, 0 = invalid (never labelled).
+    Returns:
+        labels (H, W) int32 (0 = invalid or depth edge), number of labels.
+    """
+    from scipy import ndimage
+
+    d = depth.astype(np.float32)
+    valid = d > 0
+    thr = np.maximum(abs_jump, rel_jump * d)
+    edge = np.zeros_like(valid)
+    dx = np.abs(d[:, 1:] - d[:, :-1]) > np.minimum(thr[:, 1:], thr[:, :-1])
+    dy = np.abs(d[1:, :] - d[:-1, :]) > np.minimum(thr[1:, :], thr[:-1, :])
+    # The far side of a jump is the edge: the near (occluding) side keeps its silhouette.
+    far_x = d[:, 1:] > d[:, :-1]
+    edge[:, 1:] |= dx & far_x
+    edge[:, :-1] |= dx & ~far_x
+    far_y = d[1:, :] > d[:-1, :]
+    edge[1:, :] |= dy & far_y
+    edge[:-1, :] |= dy & ~far_y
+    inner = valid & ~edge
+    labels, n = ndimage.label(inner)
+    return labels.astype(np.int32), int(n)
+
+
+def clean_mask(
+    seeds: np.ndarray,
+    depth: np.ndarray,
+    previous: np.ndarray | None = None,
+    open_radius: int = 1,
+    min_area: int = 20,
+    seed_fraction: float = 0.08,
+    keep_fraction: float = 0.5,
+    max_area_fraction: float = 0.4,
+    rel_jump: float = 0.04,
+    abs_jump: float = 0.03,
+    close_radius: int = 1,
+) -> np.ndarray:
+    """Residual seeds -> a clean object mask (pure function, numpy).
+
+    1. Opening removes speckle and one-pixel slivers from the seeds.
+    2. The frame is split into depth-continuous segments (:func:`depth_segments`); a segment is
+       dynamic when its seeds cover >= ``seed_fraction`` of it, or (temporal consistency) when
+       >= ``keep_fraction`` of it was dynamic in ``previous``; segments smaller than ``min_area`` px
+       or larger than ``max_area_fraction`` of the valid pixels (the static background) never are.
+    3. Closing fills holes; the result is restricted to valid depth.
+
+    Args:
+        seeds: (H, W) bool. depth: (H, W) metres. previous: (H, W) bool or None.
+    Returns:
+        (H, W) bool.
+    """
+    from scipy import ndimage
+
+    valid = depth > 0
+    s = seeds & valid
+    if open_radius > 0:
+        s = ndimage.binary_opening(s, structure=np.ones((2 * open_radius + 1,) * 2, bool))
+    labels, n = depth_segments(depth, rel_jump, abs_jump)
+    if n == 0:
+        return np.zeros_like(valid)
+    idx = np.arange(1, n + 1)
+    area = ndimage.sum_labels(np.ones_like(labels), labels, idx)
+    seed_px = ndimage.sum_labels(s, labels, idx)
+    keep = seed_px >= seed_fraction * area
+    if previous is not None and previous.shape == labels.shape and previous.any():
+        keep |= ndimage.sum_labels(previous, labels, idx) >= keep_fraction * area
+    keep &= (area >= min_area) & (area <= max_area_fraction * max(int(valid.sum()), 1))
+    lut = np.zeros(n + 1, bool)
+    lut[1:] = keep
+    out = lut[labels]
+    if out.any():
+        # Give the segments back their edge pixels that sit at the segment's depth.
+        ring = ndimage.binary_dilation(out) & ~out & valid
+        dsum = ndimage.uniform_filter(np.where(out, depth, 0.0).astype(np.float64), 3)
+        csum = ndimage.uniform_filter(out.astype(np.float64), 3)
+        nbr = dsum / np.maximum(csum, 1e-9)
+        out |= ring & (np.abs(depth - nbr) <= np.maximum(abs_jump, rel_jump * depth))
+        if close_radius > 0:
+            out = ndimage.binary_closing(out, structure=np.ones((2 * close_radius + 1,) * 2, bool), border_value=0)
+    return out & valid
+
+
+@torch.no_grad()
+def march_map_depth(
+    field: torch.nn.Module,
+    pose: torch.Tensor,
+    K: torch.Tensor,
+    uv: torch.Tensor,
+    tau: float,
+    near: float,
+    far: float,
+    step: float,
+    chunk: int = 4096,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Where the map's first surface lies along pixel rays (sphere-free SDF marching).
+
+    Samples every ``step`` metres in [near, far], finds the first + to - sign change of the SDF among
+    allocated samples (unallocated space counts as free) and interpolates linearly.
+
+    Args:
+        uv: (N, 2) pixel coordinates. pose: (4, 4) c2w.
+    Returns:
+        depth (N,) z-depth of the surface (0 where none), known (N,) bool, rgb (N, 3) at the surface.
+    """
+    from tivne.rendering import rays_from_pixels
+
+    n_s = max(int(np.ceil((far - near) / step)) + 1, 2)
+    z = torch.linspace(near, far, n_s, device=uv.device, dtype=K.dtype)
+    out_d, out_k, out_c = [], [], []
+    per = max(chunk // n_s, 1) * 1  # rays per pass
+    per = max(per, 64)
+    for start in range(0, uv.shape[0], per):
+        o, d = rays_from_pixels(uv[start : start + per].to(K.dtype), K, pose)
+        pts = o[:, None, :] + d[:, None, :] * z[None, :, None]
+        m = pts.shape[0]
+        f = field(pts.reshape(-1, 3), torch.full((m * n_s,), float(tau), device=uv.device, dtype=K.dtype))
+        sdf = torch.where(f.valid, f.sdf, torch.ones_like(f.sdf)).view(m, n_s)
+        crossing = (sdf[:, :-1] > 0) & (sdf[:, 1:] <= 0) & f.valid.view(m, n_s)[:, 1:]
+        has = crossing.any(dim=1)
+        i = crossing.float().argmax(dim=1)
+        s0 = sdf.gather(1, i[:, None])[:, 0]
+        s1 = sdf.gather(1, (i + 1)[:, None])[:, 0]
+        frac = (s0 / (s0 - s1).clamp_min(1e-6)).clamp(0, 1)
+        depth = z[i] + frac * step * (n_s > 1)
+        depth = torch.where(has, z[i] + frac * (z[1] - z[0]), torch.zeros_like(depth))
+        rgb = f.rgb.view(m, n_s, 3)
+        c = rgb.gather(1, (i + 1)[:, None, None].expand(-1, 1, 3))[:, 0]
+        out_d.append(depth)
+        out_k.append(has)
+        out_c.append(c)
+    return torch.cat(out_d), torch.cat(out_k), torch.cat(out_c)
+
+
+class GeometricMasks(MaskProvider):
+    """Model-free motion masks from the map (``needs_tracked_pose``).
+
+    After tracking, the map is ray-marched at the tracked pose at a reference time (``reference``:
+    'last_mapped' = the latest time the map was trained on, default; 'frame' = the frame's own τ;
+    'first' = τ = 0, the canonical map) on every ``stride``-th pixel. Pixels observed in front of
+    the map's surface by more than max(abs_threshold, k_sigma·σ(z)) where the map knows a surface
+    are seeds (:func:`residual_seeds`); :func:`clean_mask` turns them into whole objects with
+    depth-continuous segments, opening/closing and the previous frame's mask (temporal consistency).
+    The mask is computed at the reduced resolution and upsampled (nearest) to the frame size, then
+    restricted to the segment edges at full resolution by the segment test.
+
+    Frames before the map exists (the first) give an all-static mask.
+    """
+
+    name = "geometric"
+    needs_tracked_pose = True
+
+    def __init__(
+        self,
+        reference: str = "last_mapped",
+        stride: int = 4,
+        abs_threshold: float = 0.08,
+        k_sigma: float = 6.0,
+        color_threshold: float | None = None,
+        far: float = 8.0,
+        step: float = 0.04,
+        open_radius: int = 1,
+        close_radius: int = 1,
+        min_area: int = 12,
+        seed_fraction: float = 0.08,
+        keep_fraction: float = 0.5,
+        max_area_fraction: float = 0.4,
+        rel_jump: float = 0.04,
+        abs_jump: float = 0.03,
+        temporal: bool = True,
+    ) -> None:
+        if reference not in ("last_mapped", "frame", "first"):
+            raise ValueError(f"masks.reference must be 'last_mapped', 'frame' or 'first', got {reference!r}")
+        if stride < 1:
+            raise ValueError(f"masks.stride must be >= 1, got {stride}")
+        self.reference = reference
+        self.stride = int(stride)
+        self.abs_threshold = abs_threshold
+        self.k_sigma = k_sigma
+        self.color_threshold = color_threshold
+        self.far = far
+        self.step = step
+        self.clean_kwargs = dict(
+            open_radius=open_radius, close_radius=close_radius, min_area=min_area, seed_fraction=seed_fraction,
+            keep_fraction=keep_fraction, max_area_fraction=max_area_fraction, rel_jump=rel_jump, abs_jump=abs_jump,
+        )
+        self.temporal = temporal
+        self.previous: np.ndarray | None = None  # low-resolution mask of the previous frame
+        self._previous_tau: float | None = None
+        self.timings_ms: list[float] = []
+        self.last_debug: dict[str, np.ndarray] = {}
+
+    def reference_tau(self, context: MaskContext) -> float:
+        if self.reference == "frame":
+            return float(context.tau)
+        if self.reference == "first":
+            return 0.0
+        if context.last_mapped_tau is not None:
+            return float(context.last_mapped_tau)
+        # The caller does not pass it: with mapping every frame it is the previous frame's time.
+        return float(self._previous_tau if self._previous_tau is not None else context.tau)
+
+    def __call__(self, frame: Frame, context: MaskContext | None) -> torch.Tensor | None:
+        start = time.perf_counter()
+        h, w = frame.height, frame.width
+        if context is None or context.frame_number == 0:
+            self._previous_tau = None if context is None else float(context.tau)
+            self.previous = None
+            return torch.zeros(h, w, dtype=torch.bool, device=frame.depth.device)
+        s = self.stride
+        device = frame.depth.device
+        depth = frame.depth[::s, ::s]
+        hs, ws = depth.shape
+        v, u = torch.meshgrid(torch.arange(hs, device=device) * s, torch.arange(ws, device=device) * s, indexing="ij")
+        uv = torch.stack([u.reshape(-1), v.reshape(-1)], dim=-1).float()
+        r = context.render
+        near = float(getattr(r, "near", 0.05))
+        far = max(self.far, float(depth.max()) + 0.5)
+        tau_ref = self.reference_tau(context)
+        rd, known, rc = march_map_depth(context.field, context.pose, context.K, uv, tau_ref, near, far, self.step)
+        rd, known = rd.view(hs, ws), known.view(hs, ws)
+        color_res = None
+        if self.color_threshold:
+            color_res = (rc.view(hs, ws, 3) - frame.rgb[::s, ::s]).abs().mean(-1)
+        seeds = residual_seeds(depth, rd, known, self.abs_threshold, self.k_sigma, color_res, self.color_threshold)
+        dnp = depth.cpu().numpy()
+        low = clean_mask(seeds.cpu().numpy(), dnp, self.previous if self.temporal else None, **self.clean_kwargs)
+        self.previous = low
+        self._previous_tau = float(context.tau)
+        self.last_debug = {"seeds": seeds.cpu().numpy(), "rendered": rd.cpu().numpy(), "known": known.cpu().numpy()}
+        full = torch.from_numpy(low).to(device)
+        full = full.repeat_interleave(s, 0).repeat_interleave(s, 1)[:h, :w]
+        if full.shape != (h, w):  # frame size not a multiple of the stride
+            pad = torch.zeros(h, w, dtype=torch.bool, device=device)
+            pad[: full.shape[0], : full.shape[1]] = full
+            full = pad
+        full = full & (frame.depth > 0)
+        self.timings_ms.append(1000 * (time.perf_counter() - start))
+        return full
+
+
+class RecordingMasks(MaskProvider):
+    """Wraps a provider and keeps every mask it returns (per frame index) -- for benchmarks."""
+
+    def __init__(self, inner: MaskProvider) -> None:
+        self.inner = inner
+        self.name = inner.name
+        self.needs_tracked_pose = inner.needs_tracked_pose
+        self.masks: dict[int, torch.Tensor | None] = {}
+        self.gt: dict[int, torch.Tensor | None] = {}
+        self.timestamps: dict[int, float] = {}
+
+    def __call__(self, frame: Frame, context: MaskContext | None) -> torch.Tensor | None:
+        mask = self.inner(frame, context)
+        self.masks[frame.index] = None if mask is None else mask.detach().cpu().clone()
+        self.gt[frame.index] = None if frame.mask is None else frame.mask.detach().cpu().clone()
+        self.timestamps[frame.index] = float(frame.timestamp)
+        return mask

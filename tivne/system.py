@@ -17,7 +17,7 @@ import torch
 from data_modules.frame import Frame, Intrinsics
 from tivne.checkpoint import CHECKPOINT_NAME, save_checkpoint, time_to_tau
 from tivne.field.networks import TimeVaryingField
-from tivne.geometry import backproject, invert_pose, write_tum_trajectory
+from tivne.geometry import backproject, invert_pose, orthonormalize_pose, write_tum_trajectory
 from tivne.keyframes import KeyframeDatabase, KeyframePolicy, View
 from tivne.losses import LossWeights
 from tivne.mapping import Mapper, MappingConfig
@@ -101,6 +101,7 @@ class TivNeSLAM(L.LightningModule):
         self.records: list[FrameRecord] = []
         self.tracked: list[torch.Tensor] = []  # latest absolute poses, for the motion model
         self.t0: float | None = None
+        self.last_mapped_tau = 0.0
         self.timers = Timers()
         self.generator = torch.Generator().manual_seed(seed)
         self.last_metrics: dict[str, Any] = {}
@@ -130,8 +131,9 @@ class TivNeSLAM(L.LightningModule):
         else:
             init = predict_pose(self.tracked, self.tracking_cfg.motion_model)
             t = time.perf_counter()
+            query_tau = self.last_mapped_tau if self.tracking_cfg.query_time == "last_mapped" else tau
             pose, tstats = track_frame(
-                self.field, View(k, tau, frame.rgb, frame.depth, mask, init), self.K, self.render_cfg,
+                self.field, View(k, query_tau, frame.rgb, frame.depth, mask, init), self.K, self.render_cfg,
                 self.loss_weights, self.tracking_cfg, self.generator,
             )
             self.timers.track_s += time.perf_counter() - t
@@ -147,6 +149,7 @@ class TivNeSLAM(L.LightningModule):
             self.db.add(view)
         if k == 0 or k % self.mapping_cfg.every == 0:
             stats.update(self._map(view, first=k == 0))
+            self.last_mapped_tau = tau
         self._allocate(view)
         self._record(frame, view)
         self.timers.frames += 1
@@ -186,7 +189,7 @@ class TivNeSLAM(L.LightningModule):
 
     def _record(self, frame: Frame, view: View) -> None:
         kf = len(self.db) - 1
-        rel = invert_pose(self.db.views[kf].pose) @ view.pose
+        rel = orthonormalize_pose(invert_pose(self.db.views[kf].pose) @ view.pose)
         self.records.append(FrameRecord(float(frame.timestamp), kf, rel, frame.gt_pose))
         self.tracked.append(view.pose.detach())
         if len(self.tracked) > 2:
@@ -200,18 +203,23 @@ class TivNeSLAM(L.LightningModule):
     def timestamps(self) -> list[float]:
         return [r.timestamp for r in self.records]
 
-    def gt_trajectory(self) -> torch.Tensor | None:
-        if not self.records or any(r.gt_pose is None for r in self.records):
+    def gt_pairs(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """(estimated, GT) poses of the frames that have GT (readers leave uncovered frames without)."""
+        keep = [i for i, r in enumerate(self.records) if r.gt_pose is not None]
+        if len(keep) < 3:
             return None
-        return torch.stack([r.gt_pose for r in self.records]).detach().cpu().double()
+        est = self.trajectory()[keep]
+        gt = torch.stack([self.records[i].gt_pose for i in keep]).detach().cpu().double()
+        return est, gt
 
-    def ate_so_far(self) -> float | None:
-        gt = self.gt_trajectory()
-        if gt is None or len(self.records) < 3:
+    def ate(self):
+        """ATE (SE(3)-aligned) over frames with GT, or None."""
+        pairs = self.gt_pairs()
+        if pairs is None:
             return None
         from tivne.metrics import absolute_trajectory_error
 
-        return float(absolute_trajectory_error(self.trajectory().numpy(), gt.numpy(), align="se3").rmse)
+        return absolute_trajectory_error(pairs[0].numpy(), pairs[1].numpy(), align="se3")
 
     def write_trajectory(self) -> Path:
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -223,10 +231,9 @@ class TivNeSLAM(L.LightningModule):
         stats = dict(stats)
         stats["perf/s_per_frame"] = elapsed
         stats["map/voxels"] = float(self.field.grid.num_voxels)
-        ate = self.ate_so_far() if (k % 10 == 0 or k < 3) else None
-        if ate is not None:
-            stats["eval/ate_rmse_m"] = ate
-            self.last_metrics["ate_rmse_m"] = ate
+        result = self.ate() if k % 10 == 0 else None
+        if result is not None:
+            stats["eval/ate_rmse_m"] = float(result.rmse)
         logger = self.logger.experiment if self.logger is not None and hasattr(self.logger, "experiment") else None
         if logger is not None and hasattr(logger, "add_scalar"):
             for name, value in stats.items():
@@ -300,13 +307,12 @@ class TivNeSLAM(L.LightningModule):
             "keyframes": len(self.db),
             "checkpoint": str(ckpt.relative_to(self.run_dir)),
         }
-        gt = self.gt_trajectory()
-        if gt is not None:
-            from tivne.metrics import absolute_trajectory_error
-
-            metrics.update(absolute_trajectory_error(self.trajectory().numpy(), gt.numpy(), align="se3").as_metrics())
+        result = self.ate()
+        if result is not None:
+            metrics.update(result.as_metrics())
+            metrics["ate_frames"] = int(result.num_poses)
         else:
-            metrics.update({"ate_rmse_m": None, "ate_reason": "the dataset has no ground-truth poses"})
+            metrics.update({"ate_rmse_m": None, "ate_reason": "fewer than 3 frames have ground-truth poses"})
         self._write_renders()
         metrics.update(self._write_meshes())
         write_metrics(self.run_dir / "metrics.json", metrics)

@@ -142,7 +142,11 @@ class SparseVoxelGrid(nn.Module):
         if points.numel() == 0:
             return 0
         device = self.voxel_keys.device
-        coords = torch.floor(points.to(device) / self.voxel_size).long()
+        coords = torch.floor(points.to(device) / self.voxel_size)
+        # A diverged pose must not take the run down: only allocate where a key exists.
+        coords = coords[torch.isfinite(coords).all(-1) & (coords.abs() < _OFFSET - 2).all(-1)].long()
+        if coords.numel() == 0:
+            return 0
         keys = torch.unique(pack_coords(coords))
         if dilation > 0:
             r = torch.arange(-dilation, dilation + 1, device=device)
@@ -190,8 +194,11 @@ class SparseVoxelGrid(nn.Module):
         """
         g = points / self.voxel_size
         base = torch.floor(g.detach())
-        keys = pack_coords(base.long())
+        # Points outside the hashable range (or non-finite) are simply not in the map.
+        in_range = torch.isfinite(base).all(-1) & (base.abs() < _OFFSET - 1).all(-1)
+        keys = pack_coords(torch.where(in_range[:, None], base, torch.zeros_like(base)).long())
         pos, valid = sorted_lookup(self.voxel_keys, keys)
+        valid &= in_range
         rows = self.voxel_corner_rows[pos[valid]]  # (Pv, 8)
         frac = g[valid] - base[valid]
         w = trilinear_weights(frac)  # (Pv, 8)
