@@ -28,7 +28,7 @@ class MappingConfig:
     lr_embeddings: float = 1e-2
     lr_decoder: float = 5e-3
     lr_pose: float = 5e-4
-    optimize_poses: bool = True
+    optimize_poses: bool = False
     every: int = 1
 
 

@@ -1,0 +1,73 @@
+"""Benchmark: run SLAM on a sequence and print speed, memory and accuracy figures.
+
+    python bench/slam.py                                # the default run (cube, 640x480, 150 frames)
+    python bench/slam.py data.max_frames=30 --profile   # plus a profile of where the time goes
+    python bench/slam.py field.time=false sampler=uniform keyframe=random   # an ablation
+
+Extra arguments are Hydra overrides of conf/config.yaml. Figures are printed, never asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import json
+import pstats
+import sys
+import tempfile
+from pathlib import Path
+
+from hydra import compose, initialize_config_dir
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from tivne.train import run  # noqa: E402
+
+FIGURES = [
+    ("frames", "frames", "{:.0f}"),
+    ("s_per_frame", "s/frame (mean, incl. first-frame init)", "{:.3f}"),
+    ("s_per_frame_after_first", "s/frame (after the first frame)", "{:.3f}"),
+    ("track_ms_per_iter", "tracking ms/iter", "{:.1f}"),
+    ("map_ms_per_iter", "mapping ms/iter", "{:.1f}"),
+    ("peak_rss_mb", "peak RSS MB", "{:.0f}"),
+    ("ate_rmse_m", "ATE RMSE cm", "{:.2f}", 100.0),
+    ("ate_max_m", "ATE max cm", "{:.2f}", 100.0),
+    ("cube_accuracy_first_m", "cube accuracy @first cm", "{:.2f}", 100.0),
+    ("cube_accuracy_last_m", "cube accuracy @last cm", "{:.2f}", 100.0),
+    ("ghost_fraction_first", "ghost fraction @first", "{:.3f}"),
+    ("ghost_fraction_last", "ghost fraction @last", "{:.3f}"),
+    ("static_completion_ratio_first", "static completion @5cm, first", "{:.3f}"),
+    ("static_completion_ratio_last", "static completion @5cm, last", "{:.3f}"),
+]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", default=None, help="run directory (default: a temporary one)")
+    parser.add_argument("--profile", action="store_true", help="print the 25 most expensive functions")
+    args, overrides = parser.parse_known_args()
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=["trainer.progress_bar=false", *overrides])
+    out = Path(args.out or tempfile.mkdtemp(prefix="tivne-bench-"))
+    profiler = cProfile.Profile() if args.profile else None
+    if profiler:
+        profiler.enable()
+    metrics = run(cfg, out)
+    if profiler:
+        profiler.disable()
+    print(f"\nbenchmark: {' '.join(overrides) or 'default'}  (run dir {out})")
+    for key, label, fmt, *scale in FIGURES:
+        value = metrics.get(key)
+        text = "n/a" if value is None else fmt.format(value * (scale[0] if scale else 1.0))
+        print(f"  {label:<40} {text}")
+    print(json.dumps({k: metrics.get(k) for k, *_ in FIGURES}))
+    if profiler:
+        buf = io.StringIO()
+        pstats.Stats(profiler, stream=buf).sort_stats("tottime").print_stats(25)
+        print(buf.getvalue())
+
+
+if __name__ == "__main__":
+    main()
