@@ -53,9 +53,14 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # a truncated or foreign file
         raise ValueError(f"{path}: not a readable TivNe checkpoint ({type(exc).__name__})") from None
-    field = TimeVaryingField(**payload["field_kwargs"])
-    field.grid.load_sparse_state(payload["field_state"])
-    field.load_state_dict(payload["field_state"])
+    try:
+        field = TimeVaryingField(**payload["field_kwargs"])
+        state = payload["field_state"]
+        field.grid.load_sparse_state({k[len("grid."):]: v for k, v in state.items() if k.startswith("grid.")})
+        field.load_state_dict(state)
+    except (KeyError, TypeError, RuntimeError) as exc:  # written by an incompatible version
+        first_line = str(exc).strip().splitlines()[-1].strip()
+        raise ValueError(f"{path}: checkpoint does not match this version of the field ({first_line})") from None
     field.to(device).eval()
     meta = {k: v for k, v in payload.items() if k != "field_state"}
     return field, meta
