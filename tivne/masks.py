@@ -41,13 +41,21 @@ class MaskContext:
 
 
 class MaskProvider:
-    """Base class: returns an (H, W) bool mask (True = dynamic) or None (unknown)."""
+    """Base class: returns an (H, W) bool mask (True = dynamic) or None (unknown).
+
+    Providers that need the tracked pose are called after tracking; ``predict`` gives the mask
+    tracking should use before that (from earlier frames), or None.
+    """
 
     name = "base"
     needs_tracked_pose = False
 
     def __call__(self, frame: Frame, context: MaskContext | None) -> torch.Tensor | None:
         raise NotImplementedError
+
+    def predict(self, frame: Frame) -> torch.Tensor | None:
+        """A mask for ``frame`` before its pose is known (for tracking); None = unknown."""
+        return None
 
 
 class NoMasks(MaskProvider):
@@ -204,7 +212,7 @@ def residual_seeds(
     return seeds
 
 
-def depth_segments(depth: np.ndarray, rel_jump: float = 0.04, abs_jump: float = 0.03) -> tuple[np.ndarray, int]:
+def depth_segments(depth: np.ndarray, rel_jump: float = 0.1, abs_jump: float = 0.03) -> tuple[np.ndarray, int]:
     """Label depth-continuous regions: neighbours join when |Δz| <= max(abs_jump, rel_jump · z).
 
     Args:
@@ -241,7 +249,7 @@ def clean_mask(
     seed_fraction: float = 0.08,
     keep_fraction: float = 0.5,
     max_area_fraction: float = 0.4,
-    rel_jump: float = 0.04,
+    rel_jump: float = 0.1,
     abs_jump: float = 0.03,
     close_radius: int = 1,
 ) -> np.ndarray:
@@ -317,8 +325,7 @@ def march_map_depth(
     n_s = max(int(np.ceil((far - near) / step)) + 1, 2)
     z = torch.linspace(near, far, n_s, device=uv.device, dtype=K.dtype)
     out_d, out_k, out_c = [], [], []
-    per = max(chunk // n_s, 1) * 1  # rays per pass
-    per = max(per, 64)
+    per = max(chunk // n_s, 64)  # rays per forward pass
     for start in range(0, uv.shape[0], per):
         o, d = rays_from_pixels(uv[start : start + per].to(K.dtype), K, pose)
         pts = o[:, None, :] + d[:, None, :] * z[None, :, None]
@@ -331,14 +338,57 @@ def march_map_depth(
         s0 = sdf.gather(1, i[:, None])[:, 0]
         s1 = sdf.gather(1, (i + 1)[:, None])[:, 0]
         frac = (s0 / (s0 - s1).clamp_min(1e-6)).clamp(0, 1)
-        depth = z[i] + frac * step * (n_s > 1)
-        depth = torch.where(has, z[i] + frac * (z[1] - z[0]), torch.zeros_like(depth))
+        depth = torch.where(has, z[i] + frac * (z[1] - z[0]), torch.zeros_like(s0))
         rgb = f.rgb.view(m, n_s, 3)
         c = rgb.gather(1, (i + 1)[:, None, None].expand(-1, 1, 3))[:, 0]
         out_d.append(depth)
         out_k.append(has)
         out_c.append(c)
     return torch.cat(out_d), torch.cat(out_k), torch.cat(out_c)
+
+
+@torch.no_grad()
+def free_space_seeds(
+    depth: torch.Tensor,
+    pose: torch.Tensor,
+    ref_depth: torch.Tensor,
+    ref_pose: torch.Tensor,
+    K: torch.Tensor,
+    abs_threshold: float = 0.08,
+    k_sigma: float = 6.0,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pixels whose observed point lies in space an earlier frame saw as free (static-world test).
+
+    Each valid pixel is back-projected with ``depth`` and ``pose``, moved into the reference camera
+    and compared with the reference depth there (the minimum over a 3x3 neighbourhood, so static
+    silhouettes do not fire): ``z_ref(X) < d_ref - thr`` means the point was empty space then, so
+    something moved *into* it -- the moving object's current pixels. Disoccluded background
+    (``z_ref(X) > d_ref``) is not flagged.
+
+    Args:
+        depth, ref_depth: (H, W) metres, 0 = invalid. pose, ref_pose: (4, 4) c2w. K: (3, 3) for (H, W).
+    Returns:
+        seeds (H, W) bool, known (H, W) bool (the reference saw the point's pixel).
+    """
+    h, w = depth.shape
+    v, u = torch.meshgrid(torch.arange(h, device=depth.device), torch.arange(w, device=depth.device), indexing="ij")
+    x = (u - K[0, 2]) / K[0, 0] * depth
+    y = (v - K[1, 2]) / K[1, 1] * depth
+    cam = torch.stack([x, y, depth], dim=-1).reshape(-1, 3)
+    rel = torch.linalg.solve(ref_pose.to(cam.dtype), pose.to(cam.dtype))  # current camera -> reference camera
+    p = cam @ rel[:3, :3].T + rel[:3, 3]
+    z = p[:, 2]
+    ur = torch.round(p[:, 0] / z.clamp_min(1e-6) * K[0, 0] + K[0, 2]).long()
+    vr = torch.round(p[:, 1] / z.clamp_min(1e-6) * K[1, 1] + K[1, 2]).long()
+    inb = (z > 1e-3) & (ur >= 0) & (ur < w) & (vr >= 0) & (vr < h)
+    inf = torch.where(ref_depth > 0, ref_depth, torch.full_like(ref_depth, float("inf")))
+    dmin = -torch.nn.functional.max_pool2d(-inf[None, None], 3, stride=1, padding=1)[0, 0]
+    d_ref = torch.zeros_like(z)
+    d_ref[inb] = dmin[vr[inb], ur[inb]]
+    known = inb & torch.isfinite(d_ref) & (depth.reshape(-1) > 0)
+    thr = torch.clamp(k_sigma * depth_sigma(d_ref.clamp(max=20.0)), min=abs_threshold)
+    seeds = known & (z < d_ref - thr)
+    return seeds.view(h, w), known.view(h, w)
 
 
 class GeometricMasks(MaskProvider):
@@ -361,6 +411,8 @@ class GeometricMasks(MaskProvider):
 
     def __init__(
         self,
+        source: str = "frames",
+        lags: tuple[int, ...] = (10, 30),
         reference: str = "last_mapped",
         stride: int = 4,
         abs_threshold: float = 0.08,
@@ -374,14 +426,20 @@ class GeometricMasks(MaskProvider):
         seed_fraction: float = 0.08,
         keep_fraction: float = 0.5,
         max_area_fraction: float = 0.4,
-        rel_jump: float = 0.04,
+        rel_jump: float = 0.1,
         abs_jump: float = 0.03,
         temporal: bool = True,
+        predict_margin: int = 2,
     ) -> None:
+        if source not in ("frames", "map"):
+            raise ValueError(f"masks.source must be 'frames' or 'map', got {source!r}")
         if reference not in ("last_mapped", "frame", "first"):
             raise ValueError(f"masks.reference must be 'last_mapped', 'frame' or 'first', got {reference!r}")
         if stride < 1:
             raise ValueError(f"masks.stride must be >= 1, got {stride}")
+        self.source = source
+        self.lags = tuple(int(x) for x in lags)
+        self.history: list[tuple[int, torch.Tensor, torch.Tensor]] = []  # (frame_number, low-res depth, pose)
         self.reference = reference
         self.stride = int(stride)
         self.abs_threshold = abs_threshold
@@ -394,6 +452,7 @@ class GeometricMasks(MaskProvider):
             keep_fraction=keep_fraction, max_area_fraction=max_area_fraction, rel_jump=rel_jump, abs_jump=abs_jump,
         )
         self.temporal = temporal
+        self.predict_margin = int(predict_margin)
         self.previous: np.ndarray | None = None  # low-resolution mask of the previous frame
         self._previous_tau: float | None = None
         self.timings_ms: list[float] = []
@@ -412,13 +471,82 @@ class GeometricMasks(MaskProvider):
     def __call__(self, frame: Frame, context: MaskContext | None) -> torch.Tensor | None:
         start = time.perf_counter()
         h, w = frame.height, frame.width
-        if context is None or context.frame_number == 0:
-            self._previous_tau = None if context is None else float(context.tau)
-            self.previous = None
-            return torch.zeros(h, w, dtype=torch.bool, device=frame.depth.device)
         s = self.stride
         device = frame.depth.device
         depth = frame.depth[::s, ::s]
+        hs, ws = depth.shape
+        if context is None or context.frame_number == 0:
+            self._previous_tau = None if context is None else float(context.tau)
+            self.previous = None
+            self.history = [] if context is None else [(0, depth.clone(), context.pose.detach().clone())]
+            return torch.zeros(h, w, dtype=torch.bool, device=frame.depth.device)
+        if self.source == "frames":
+            seeds = self._frame_seeds(depth, context)
+            rd = known = None
+        else:
+            seeds, rd, known = self._map_seeds(frame, depth, context)
+        dnp = depth.cpu().numpy()
+        low = clean_mask(seeds.cpu().numpy(), dnp, self.previous if self.temporal else None, **self.clean_kwargs)
+        self.previous = low
+        self._previous_tau = float(context.tau)
+        self.last_debug = {"seeds": seeds.cpu().numpy()}
+        if rd is not None:
+            self.last_debug |= {"rendered": rd.cpu().numpy(), "known": known.cpu().numpy()}
+        full = torch.from_numpy(low).to(device)
+        full = full.repeat_interleave(s, 0).repeat_interleave(s, 1)[:h, :w]
+        if full.shape != (h, w):  # frame size not a multiple of the stride
+            pad = torch.zeros(h, w, dtype=torch.bool, device=device)
+            pad[: full.shape[0], : full.shape[1]] = full
+            full = pad
+        full = full & (frame.depth > 0)
+        self.timings_ms.append(1000 * (time.perf_counter() - start))
+        return full
+
+    def predict(self, frame: Frame) -> torch.Tensor | None:
+        """The previous frame's mask dilated by ``predict_margin`` low-resolution pixels (objects move
+        little between frames), at the frame size: what tracking should leave out before this frame's
+        own mask exists. None before the first mask."""
+        if self.previous is None:
+            return None
+        low = torch.from_numpy(self.previous)[None, None].float()
+        r = self.predict_margin
+        if r > 0:
+            low = torch.nn.functional.max_pool2d(low, 2 * r + 1, stride=1, padding=r)
+        s, h, w = self.stride, frame.height, frame.width
+        full = (low[0, 0] > 0).repeat_interleave(s, 0).repeat_interleave(s, 1)[:h, :w].to(frame.depth.device)
+        if full.shape != (h, w):
+            pad = torch.zeros(h, w, dtype=torch.bool, device=frame.depth.device)
+            pad[: full.shape[0], : full.shape[1]] = full
+            full = pad
+        return full
+
+    def _low_K(self, K: torch.Tensor) -> torch.Tensor:
+        Kl = K.clone()
+        Kl[:2] /= self.stride  # pixel (i*s) of the frame is pixel i here
+        return Kl
+
+    def _frame_seeds(self, depth: torch.Tensor, context: MaskContext) -> torch.Tensor:
+        k = int(context.frame_number)
+        pose = context.pose.detach().clone()
+        Kl = self._low_K(context.K)
+        seeds = torch.zeros_like(depth, dtype=torch.bool)
+        used = set()
+        for lag in self.lags:
+            # the stored frame closest to `lag` frames back (the oldest one early in the sequence)
+            ref = min(self.history, key=lambda e: abs((k - e[0]) - lag))
+            if ref[0] in used:
+                continue
+            used.add(ref[0])
+            s, _ = free_space_seeds(depth, pose, ref[1], ref[2], Kl, self.abs_threshold, self.k_sigma)
+            seeds |= s
+        self.history.append((k, depth.clone(), pose))
+        horizon = max(self.lags) + 1
+        self.history = [e for e in self.history if k - e[0] <= horizon]
+        return seeds
+
+    def _map_seeds(self, frame: Frame, depth: torch.Tensor, context: MaskContext):
+        s = self.stride
+        device = depth.device
         hs, ws = depth.shape
         v, u = torch.meshgrid(torch.arange(hs, device=device) * s, torch.arange(ws, device=device) * s, indexing="ij")
         uv = torch.stack([u.reshape(-1), v.reshape(-1)], dim=-1).float()
@@ -432,32 +560,29 @@ class GeometricMasks(MaskProvider):
         if self.color_threshold:
             color_res = (rc.view(hs, ws, 3) - frame.rgb[::s, ::s]).abs().mean(-1)
         seeds = residual_seeds(depth, rd, known, self.abs_threshold, self.k_sigma, color_res, self.color_threshold)
-        dnp = depth.cpu().numpy()
-        low = clean_mask(seeds.cpu().numpy(), dnp, self.previous if self.temporal else None, **self.clean_kwargs)
-        self.previous = low
-        self._previous_tau = float(context.tau)
-        self.last_debug = {"seeds": seeds.cpu().numpy(), "rendered": rd.cpu().numpy(), "known": known.cpu().numpy()}
-        full = torch.from_numpy(low).to(device)
-        full = full.repeat_interleave(s, 0).repeat_interleave(s, 1)[:h, :w]
-        if full.shape != (h, w):  # frame size not a multiple of the stride
-            pad = torch.zeros(h, w, dtype=torch.bool, device=device)
-            pad[: full.shape[0], : full.shape[1]] = full
-            full = pad
-        full = full & (frame.depth > 0)
-        self.timings_ms.append(1000 * (time.perf_counter() - start))
-        return full
+        return seeds, rd, known
 
 
 class RecordingMasks(MaskProvider):
-    """Wraps a provider and keeps every mask it returns (per frame index) -- for benchmarks."""
+    """Wraps a provider and keeps every mask it returns (per frame index) -- for benchmarks.
+
+    Instances register themselves in ``RecordingMasks.instances`` so a caller that builds the system
+    through Hydra (``masks.provider: {_target_: tivne.masks.RecordingMasks, inner: {...}}``) finds them.
+    """
+
+    instances: list["RecordingMasks"] = []
 
     def __init__(self, inner: MaskProvider) -> None:
+        RecordingMasks.instances.append(self)
         self.inner = inner
         self.name = inner.name
         self.needs_tracked_pose = inner.needs_tracked_pose
         self.masks: dict[int, torch.Tensor | None] = {}
         self.gt: dict[int, torch.Tensor | None] = {}
         self.timestamps: dict[int, float] = {}
+
+    def predict(self, frame: Frame) -> torch.Tensor | None:
+        return self.inner.predict(frame)
 
     def __call__(self, frame: Frame, context: MaskContext | None) -> torch.Tensor | None:
         mask = self.inner(frame, context)

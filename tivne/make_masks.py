@@ -1,0 +1,83 @@
+"""Write a mask folder for a sequence with any provider that needs no tracked pose.
+
+``python -m tivne.make_masks dataset=<name> [dataset.root=...] masks=maskrcnn masks.provider.weights=PATH out=DIR``
+
+One PNG per frame named by frame index (``000123.png``, 255 = dynamic), written atomically; frames
+whose PNG already exists and is valid are skipped, so an interrupted run resumes.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import hydra
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import MissingMandatoryValue
+
+from data_modules.frame import DatasetError
+from data_modules.sequence import SequenceView
+from tivne.masks import MaskProvider, mask_file_name, read_mask_png, write_mask_png
+
+
+def make_masks(provider: MaskProvider, view, out: str | Path, overwrite: bool = False, progress: bool = True) -> dict[str, int]:
+    """Run ``provider`` over every frame of ``view`` and write ``out/<index:06d>.png``.
+
+    Returns counts: written, skipped (valid PNG already there), empty (provider gave None -> all static).
+    """
+    if provider.needs_tracked_pose:
+        raise DatasetError(f"masks={provider.name}", "needs the tracked pose and the map; run it inside SLAM (python -m tivne.train)")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    size = (view.intrinsics.width, view.intrinsics.height)
+    counts = {"written": 0, "skipped": 0, "empty": 0}
+    from tqdm import tqdm
+
+    for i in tqdm(range(len(view)), desc=f"masks ({provider.name})", unit="frame", disable=not progress):
+        frame = view[i]
+        path = out / mask_file_name(frame.index)
+        if path.is_file() and not overwrite:
+            try:
+                read_mask_png(path, size)
+                counts["skipped"] += 1
+                continue
+            except DatasetError:
+                pass  # corrupt or wrong size: rewrite it
+        mask = provider(frame, None)
+        if mask is None:
+            counts["empty"] += 1
+            import torch
+
+            mask = torch.zeros(frame.height, frame.width, dtype=torch.bool)
+        write_mask_png(path, mask)
+        counts["written"] += 1
+    return counts
+
+
+def run(cfg: DictConfig) -> dict[str, int]:
+    out = cfg.out  # raises MissingMandatoryValue when not given
+    dataset = instantiate(cfg.dataset)
+    view = SequenceView(dataset, **OmegaConf.to_container(cfg.data, resolve=True))
+    provider = instantiate(cfg.masks.provider)
+    return make_masks(provider, view, out, bool(cfg.overwrite), bool(cfg.progress))
+
+
+@hydra.main(config_path="../conf", config_name="make_masks", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    try:
+        counts = run(cfg)
+    except (DatasetError, MissingMandatoryValue) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    except Exception as exc:  # errors wrapped by Hydra's instantiate
+        cause = exc.__cause__ or exc.__context__
+        if isinstance(cause, (DatasetError, MissingMandatoryValue)):
+            print(f"error: {cause}", file=sys.stderr)
+            sys.exit(2)
+        raise
+    print(f"{counts['written']} written, {counts['skipped']} skipped, {counts['empty']} without a mask -> {cfg.out}")
+
+
+if __name__ == "__main__":
+    main()
