@@ -250,13 +250,6 @@ class CoFusionSequence(SequenceDataset):
         check_size(ids, self.intrinsics, self.mask_paths[i], "mask")
         return ids
 
-    def camera_pose(self, i: int) -> torch.Tensor:
-        """GT camera-to-world pose (4, 4) float64 of frame ``i`` without reading images."""
-        pose = self.gt_poses[i]
-        if pose is None:
-            raise DatasetError(f"{self.name}: frame {i}", "has no ground-truth pose (outside the GT coverage)")
-        return pose.clone()
-
     def load_frame(self, i: int) -> Frame:
         rgb = read_rgb(self.colour_paths[i])
         depth = self.load_depth(i)

@@ -170,13 +170,6 @@ class FolderSequence(SequenceDataset):
             self.gt_valid = valid
             self.gt_poses = [out[k] if valid[k] else None for k in range(len(stems))]
 
-    def camera_pose(self, i: int) -> torch.Tensor:
-        """GT camera-to-world pose (4, 4) float64 of frame ``i`` without reading images."""
-        pose = self.gt_poses[i]
-        if pose is None:
-            raise DatasetError(f"{self.name}: frame {i}", "has no ground-truth pose (outside the GT coverage)")
-        return pose.clone()
-
     def load_frame(self, i: int) -> Frame:
         rgb = read_rgb(self.rgb_paths[i])
         depth = read_depth_png(self.depth_paths[i], self.depth_scale)

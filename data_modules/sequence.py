@@ -51,6 +51,17 @@ class SequenceDataset(Dataset, abc.ABC):
     def load_frame(self, i: int) -> Frame:
         """Read frame ``i`` (0 <= i < len) from disk or generate it."""
 
+    def camera_pose(self, i: int) -> torch.Tensor:
+        """GT camera-to-world pose (4, 4) float64 of frame ``i`` without reading images.
+
+        Readers with ground truth keep ``gt_poses``: one (4, 4) tensor per frame, or None where the
+        ground truth does not cover the frame.
+        """
+        poses = getattr(self, "gt_poses", None)
+        if poses is None or poses[i] is None:
+            raise DatasetError(f"{self.name}: frame {i}", "has no ground-truth pose (outside the GT coverage)")
+        return poses[i].clone()
+
     def __getitem__(self, i: int) -> Frame:
         if not 0 <= i < len(self):
             raise IndexError(f"frame {i} out of range for {self.name} with {len(self)} frames")

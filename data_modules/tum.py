@@ -299,13 +299,6 @@ class TUMSequence(SequenceDataset):
         interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
         return cv2.remap(img, self._maps[0], self._maps[1], interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
-    def camera_pose(self, i: int) -> torch.Tensor:
-        """GT camera-to-world pose (4, 4) float64 of frame ``i`` without reading images."""
-        pose = self.gt_poses[i]
-        if pose is None:
-            raise DatasetError(f"{self.name}: frame {i}", "has no ground-truth pose (outside the GT coverage)")
-        return pose.clone()
-
     def load_frame(self, i: int) -> Frame:
         rgb = read_rgb(self.rgb_paths[i])
         depth = read_depth_png(self.depth_paths[i], self.depth_scale)
