@@ -392,18 +392,23 @@ def free_space_seeds(
 
 
 class GeometricMasks(MaskProvider):
-    """Model-free motion masks from the map (``needs_tracked_pose``).
+    """Model-free motion masks (``needs_tracked_pose``): pixels observed in space seen as free before.
 
-    After tracking, the map is ray-marched at the tracked pose at a reference time (``reference``:
-    'last_mapped' = the latest time the map was trained on, default; 'frame' = the frame's own τ;
-    'first' = τ = 0, the canonical map) on every ``stride``-th pixel. Pixels observed in front of
-    the map's surface by more than max(abs_threshold, k_sigma·σ(z)) where the map knows a surface
-    are seeds (:func:`residual_seeds`); :func:`clean_mask` turns them into whole objects with
-    depth-continuous segments, opening/closing and the previous frame's mask (temporal consistency).
-    The mask is computed at the reduced resolution and upsampled (nearest) to the frame size, then
-    restricted to the segment edges at full resolution by the segment test.
+    ``source='frames'`` (default): the frame's points, placed with the tracked pose, are tested
+    against earlier frames ``lags`` back (their depth and tracked pose; :func:`free_space_seeds`).
+    ``source='map'``: the map is ray-marched at the tracked pose at a reference time (``reference``:
+    'last_mapped' = the latest time the map was trained on; 'frame' = the frame's own τ; 'first' =
+    τ = 0) and pixels observed in front of its surface where it knows one are seeds
+    (:func:`residual_seeds`). On the moving cube the time-varying map follows the object (it is
+    trained on it every frame), so map residuals stay at the noise level and 'map' finds nothing
+    there; earlier *frames* do not adapt, hence the default.
 
-    Frames before the map exists (the first) give an all-static mask.
+    Both test every ``stride``-th pixel with threshold max(abs_threshold, k_sigma·σ(z)), and only the
+    sign "observed in front of what was seen" (the object's current pixels, not the background it
+    uncovered). :func:`clean_mask` turns seeds into whole objects (opening, depth-continuous
+    segments, area limits, the previous frame's mask for temporal consistency, closing); the mask is
+    upsampled (nearest) to the frame size. ``predict`` gives tracking the previous mask, grown.
+    The first frame gets an all-static mask.
     """
 
     name = "geometric"
@@ -412,10 +417,10 @@ class GeometricMasks(MaskProvider):
     def __init__(
         self,
         source: str = "frames",
-        lags: tuple[int, ...] = (10, 30),
+        lags: tuple[int, ...] = (5, 30),
         reference: str = "last_mapped",
         stride: int = 4,
-        abs_threshold: float = 0.08,
+        abs_threshold: float = 0.03,
         k_sigma: float = 6.0,
         color_threshold: float | None = None,
         far: float = 8.0,
@@ -423,7 +428,7 @@ class GeometricMasks(MaskProvider):
         open_radius: int = 1,
         close_radius: int = 1,
         min_area: int = 12,
-        seed_fraction: float = 0.08,
+        seed_fraction: float = 0.04,
         keep_fraction: float = 0.5,
         max_area_fraction: float = 0.4,
         rel_jump: float = 0.1,

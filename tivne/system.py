@@ -124,7 +124,8 @@ class TivNeSLAM(L.LightningModule):
         if self.t0 is None:
             self.t0 = float(frame.timestamp)
         tau = time_to_tau(frame.timestamp, self.t0, self.field.time_scale)
-        mask = None if self.masks.needs_tracked_pose else self.masks(frame, None)
+        # Post-tracking providers lend tracking a prediction (their previous mask) meanwhile.
+        mask = self.masks.predict(frame) if self.masks.needs_tracked_pose else self.masks(frame, None)
         stats: dict[str, float] = {}
         if k == 0:
             pose = torch.eye(4, device=self.device)  # the SLAM world frame is the first camera's
@@ -141,7 +142,7 @@ class TivNeSLAM(L.LightningModule):
             stats.update({f"track/{n}": v for n, v in tstats.items()})
         if self.masks.needs_tracked_pose:
             with frozen(self.field), torch.no_grad():
-                mask = self.masks(frame, MaskContext(self.field, pose, self.K, tau, self.render_cfg, k))
+                mask = self.masks(frame, MaskContext(self.field, pose, self.K, tau, self.render_cfg, k, last_mapped_tau=self.last_mapped_tau))
         view = View(k, tau, frame.rgb, frame.depth, mask, pose)
         if k == 0:
             self._allocate(view)
