@@ -1,7 +1,18 @@
-"""Mesh extraction at any time τ: marching cubes restricted to allocated voxels."""
+"""Mesh extraction at any time τ: marching cubes restricted to the allocated voxels.
+
+A lattice of step ``resolution`` spans the allocated voxels' bounding box. It is processed in slabs
+along x (so memory stays bounded for large scenes); in each slab the field is evaluated, in chunks
+and without gradients, only at lattice points inside allocated voxels, and marching cubes runs only
+on lattice cells whose 8 corners are all inside, so no surface appears where the map knows nothing.
+Neighbouring slabs share one lattice plane; the vertices on it are welded, so the result is one mesh
+without seams.
+"""
 
 from __future__ import annotations
 
+import copy
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -11,10 +22,28 @@ from skimage import measure
 
 from tivne.field.networks import TimeVaryingField
 
+# Lattice points per slab: ~100 bytes of temporaries each (coords, keys, volume, mask), ~200 MB per slab.
+DEFAULT_SLAB_POINTS = 1 << 21
+
+
+def field_device(field: TimeVaryingField) -> torch.device:
+    """The device the field's parameters and voxel hash live on."""
+    return field.grid.voxel_keys.device
+
 
 @torch.no_grad()
-def query_field(field: TimeVaryingField, points: torch.Tensor, tau: float, chunk: int = 65536) -> tuple[torch.Tensor, torch.Tensor]:
-    """SDF (P,) and colour (P, 3) of the field at (P, 3) world points at time τ, in chunks."""
+def query_field(
+    field: TimeVaryingField, points: torch.Tensor, tau: float, chunk: int = 65536
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Field at world points at time τ, evaluated in chunks.
+
+    Args:
+        points: (P, 3) world points on the field's device.
+        tau: normalised time (ignored by fields with ``time=False``).
+        chunk: points per forward pass.
+    Returns:
+        sdf (P,) in truncation units (1 outside allocated voxels) and rgb (P, 3) in [0, 1].
+    """
     sdf, rgb = [], []
     for start in range(0, points.shape[0], chunk):
         p = points[start : start + chunk]
@@ -26,44 +55,172 @@ def query_field(field: TimeVaryingField, points: torch.Tensor, tau: float, chunk
     return torch.cat(sdf), torch.cat(rgb)
 
 
+def lattice_for_voxels(voxel_coords: torch.Tensor, voxel_size: float, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """Lattice of step ``resolution`` covering the voxels' bounding box.
+
+    Args:
+        voxel_coords: (V, 3) integer voxel coordinates, V > 0.
+    Returns:
+        origin (3,) float64 world position of lattice point (0, 0, 0) (the box's min corner) and
+        dims (3,) int64 number of lattice points per axis (the last point does not pass the box).
+    """
+    coords = voxel_coords.detach().cpu().double().numpy()
+    lo = coords.min(0) * voxel_size
+    hi = (coords.max(0) + 1) * voxel_size
+    dims = np.floor((hi - lo) / resolution + 1e-9).astype(np.int64) + 1
+    return lo, dims
+
+
+def cell_mask(point_inside: np.ndarray) -> np.ndarray:
+    """Marching-cubes mask from a per-lattice-point mask.
+
+    Args:
+        point_inside: (X, Y, Z) bool, lattice point inside an allocated voxel.
+    Returns:
+        (X, Y, Z) bool, True at index (i+1, j+1, k+1) iff all 8 corners of the cell with min corner
+        (i, j, k) are inside. skimage's Lewiner marching cubes tests ``mask`` at a cell's *max*
+        corner (measured on skimage 0.26; tests/tivne/test_meshing.py guards it).
+    """
+    p = point_inside
+    cells = p[:-1, :-1, :-1].copy()
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                if dx or dy or dz:
+                    cells &= p[dx : p.shape[0] - 1 + dx, dy : p.shape[1] - 1 + dy, dz : p.shape[2] - 1 + dz]
+    mask = np.zeros_like(p)
+    mask[1:, 1:, 1:] = cells
+    return mask
+
+
+def weld_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge exactly coincident vertices and drop faces that collapse.
+
+    Slabs share a lattice plane and interpolate its vertices from the same two lattice values, so
+    seam vertices are exact duplicates; skimage's masked marching cubes also emits a few duplicates
+    of its own (measured: 16 of 1896 on a sphere), which would break watertightness.
+
+    Args:
+        vertices: (N, 3) lattice-index coordinates.
+        faces: (F, 3) int64.
+    Returns:
+        vertices (N', 3) and faces (F', 3) without duplicates or unreferenced vertices.
+    """
+    unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    faces = inverse.reshape(-1)[faces]
+    keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    faces = faces[keep]
+    used, compact = np.unique(faces, return_inverse=True)
+    return unique[used], compact.reshape(-1, 3)
+
+
+def empty_mesh() -> trimesh.Trimesh:
+    """A mesh with no vertices and no faces (callers check ``len(mesh.faces) == 0`` and warn)."""
+    return trimesh.Trimesh(vertices=np.zeros((0, 3)), faces=np.zeros((0, 3), dtype=np.int64), process=False)
+
+
 @torch.no_grad()
-def extract_mesh(field: TimeVaryingField, tau: float, resolution: float = 0.02, chunk: int = 65536) -> trimesh.Trimesh:
+def extract_mesh(
+    field: TimeVaryingField,
+    tau: float,
+    resolution: float = 0.02,
+    chunk: int = 65536,
+    device: str | torch.device | None = None,
+    slab_points: int = DEFAULT_SLAB_POINTS,
+) -> trimesh.Trimesh:
     """Zero level set of the field at τ as one welded, vertex-coloured mesh in world metres.
 
-    A lattice of step ``resolution`` spans the allocated voxels' bounding box; the field is evaluated
-    only at lattice points inside allocated voxels, and marching cubes runs only on cells whose
-    corners are all evaluated, so no surface appears where the map knows nothing.
+    Args:
+        field: the map; ``tau`` is ignored when ``field.time`` is False.
+        tau: normalised time (see :func:`tivne.checkpoint.time_to_tau`).
+        resolution: lattice step in metres.
+        chunk: points per field evaluation.
+        device: where to evaluate; default the field's device (a field elsewhere is copied there).
+        slab_points: lattice points per slab (bounds the temporaries).
+    Returns:
+        ``trimesh.Trimesh`` with faces oriented towards free space (positive SDF) and RGBA uint8
+        vertex colours from the field's rgb at τ; an empty mesh when no voxel is allocated or the
+        field has no zero crossing inside the allocated voxels.
     """
+    if resolution <= 0:
+        raise ValueError(f"resolution must be positive, got {resolution}")
+    if device is not None and torch.device(device) != field_device(field):
+        field = copy.deepcopy(field).to(device)  # leave the caller's field where it is
     grid = field.grid
-    device = grid.voxel_keys.device
+    device = field_device(field)
     if grid.num_voxels == 0:
-        return trimesh.Trimesh()
-    coords = grid.voxel_coords().double()
-    lo = coords.min(0).values * grid.voxel_size
-    hi = (coords.max(0).values + 1) * grid.voxel_size
-    dims = torch.ceil((hi - lo) / resolution).long() + 1
-    axes = [lo[i] + resolution * torch.arange(int(dims[i]), dtype=torch.float64) for i in range(3)]
-    lattice = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3).float().to(device)
-    inside = grid.contains(lattice)
-    volume = torch.ones(lattice.shape[0], device=device)
-    sdf, _ = query_field(field, lattice[inside], tau, chunk)
-    volume[inside] = sdf
-    volume_np = volume.reshape(*dims.tolist()).cpu().numpy()
-    mask_np = inside.reshape(*dims.tolist()).cpu().numpy()
-    if not ((volume_np[mask_np] < 0).any() and (volume_np[mask_np] > 0).any()):
-        return trimesh.Trimesh()
-    verts, faces, _, _ = measure.marching_cubes(volume_np, level=0.0, spacing=(resolution,) * 3, mask=mask_np)
-    verts = verts + lo.numpy()[None]
-    _, rgb = query_field(field, torch.as_tensor(verts, dtype=torch.float32, device=device), tau, chunk)
-    colors = np.concatenate([(rgb.clamp(0, 1).cpu().numpy() * 255).astype(np.uint8), np.full((len(verts), 1), 255, np.uint8)], 1)
-    return trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=colors, process=False)
+        return empty_mesh()
+    origin, dims = lattice_for_voxels(grid.voxel_coords(), grid.voxel_size, resolution)
+    nx, ny, nz = (int(d) for d in dims)
+    if min(nx, ny, nz) < 2:
+        return empty_mesh()
+    ys = origin[1] + resolution * np.arange(ny)
+    zs = origin[2] + resolution * np.arange(nz)
+    yz = np.stack(np.meshgrid(ys, zs, indexing="ij"), -1).reshape(-1, 2)  # (ny*nz, 2)
+    planes_per_slab = max(2, slab_points // (ny * nz))
+
+    all_verts, all_faces, n_verts = [], [], 0
+    start = 0
+    while start < nx - 1:
+        stop = min(nx, start + planes_per_slab)  # lattice planes [start, stop); cells start..stop-2
+        xs = origin[0] + resolution * np.arange(start, stop)
+        pts = np.concatenate([np.repeat(xs, len(yz))[:, None], np.tile(yz, (len(xs), 1))], 1)
+        pts_t = torch.from_numpy(pts).to(device=device, dtype=torch.float32)
+        inside = grid.contains(pts_t)
+        inside_np = inside.cpu().numpy().reshape(len(xs), ny, nz)
+        mask = cell_mask(inside_np)
+        if mask.any():
+            volume = np.ones(inside_np.shape, dtype=np.float32)  # positive (free) where not evaluated
+            sdf, _ = query_field(field, pts_t[inside], tau, chunk)
+            volume[inside_np] = sdf.float().cpu().numpy()
+            vals = volume[inside_np]
+            if vals.min() < 0 < vals.max():
+                try:
+                    # 'descent' orients faces towards positive SDF (free space): a closed
+                    # object gets a positive trimesh volume (tested).
+                    v, f, _, _ = measure.marching_cubes(volume, level=0.0, mask=mask, gradient_direction="descent")
+                except (RuntimeError, ValueError):  # no crossing inside the masked cells
+                    v = None
+                if v is not None and len(f):
+                    v = v.astype(np.float64)
+                    v[:, 0] += start
+                    all_verts.append(v)
+                    all_faces.append(f.astype(np.int64) + n_verts)
+                    n_verts += len(v)
+        start = stop - 1  # the next slab starts on this slab's last plane
+    if not all_faces:
+        return empty_mesh()
+    verts, faces = weld_vertices(np.concatenate(all_verts), np.concatenate(all_faces))
+    if len(faces) == 0:
+        return empty_mesh()
+    verts = origin[None] + verts * resolution
+    _, rgb = query_field(field, torch.from_numpy(verts).to(device=device, dtype=torch.float32), tau, chunk)
+    rgb8 = (rgb.clamp(0, 1).cpu().numpy() * 255.0).round().astype(np.uint8)
+    colors = np.concatenate([rgb8, np.full((len(verts), 1), 255, np.uint8)], 1)
+    mesh = trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=colors, process=False)
+    area = mesh.area_faces
+    if (area <= 0).any():  # an SDF value exactly 0 at a lattice point gives zero-area triangles
+        mesh.update_faces(area > 0)
+        mesh.remove_unreferenced_vertices()
+    return mesh if len(mesh.faces) else empty_mesh()
 
 
 def save_mesh(mesh: trimesh.Trimesh, path: str | Path) -> Path:
-    """Write a PLY atomically (tmp file + rename)."""
+    """Write a (binary) PLY atomically: a temporary file in the same folder, then rename.
+
+    An empty mesh is written as a valid PLY with no vertices, so a 4D sequence has no gaps.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.ply")
-    mesh.export(tmp)
-    tmp.replace(path)
+    data = trimesh.exchange.ply.export_ply(mesh, encoding="binary")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
     return path

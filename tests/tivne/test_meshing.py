@@ -1,0 +1,204 @@
+"""Mesh extraction on fields whose SDF is known, and the mesh CLI on a tiny saved checkpoint."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from tivne.checkpoint import save_checkpoint
+from tivne.field.networks import FieldOutputs, TimeVaryingField
+from tivne.field.voxels import unpack_keys
+from tivne.mesh import mesh_run, select_mesh_times
+from tivne.meshing import extract_mesh, save_mesh
+
+RADIUS = 0.3
+TRUNCATION = 0.05
+COLOUR = (0.2, 0.4, 0.6)
+REPO = Path(__file__).resolve().parents[2]
+
+
+def sphere_surface(n: int = 4000, radius: float = RADIUS) -> torch.Tensor:
+    """(n, 3) points on a sphere at the origin."""
+    g = torch.randn(n, 3, generator=torch.Generator().manual_seed(0))
+    return radius * g / g.norm(dim=-1, keepdim=True)
+
+
+class AnalyticSphere(TimeVaryingField):
+    """A field whose SDF is the exact sphere's (truncation units) inside allocated voxels."""
+
+    def forward(self, points: torch.Tensor, tau: torch.Tensor) -> FieldOutputs:
+        valid = self.grid.contains(points)
+        d = (points.norm(dim=-1) - RADIUS) / TRUNCATION
+        sdf = torch.where(valid, d, torch.ones_like(d))
+        rgb = torch.where(valid[:, None], torch.tensor(COLOUR).expand(len(points), 3), torch.zeros(len(points), 3))
+        return FieldOutputs(sdf, rgb, valid, torch.zeros_like(d))
+
+
+def analytic_sphere(dilation: int = 1) -> AnalyticSphere:
+    field = AnalyticSphere(time=False, voxel_size=0.1, capacity=64)
+    field.grid.allocate(sphere_surface(), dilation=dilation)
+    return field
+
+
+def field_kwargs(time: bool) -> dict:
+    return dict(time=time, voxel_size=0.1, embed_dim=4, capacity=64, hidden_dim=8, num_hidden=3, time_frequencies=1)
+
+
+def embedded_sphere(time: bool) -> TimeVaryingField:
+    """A real TimeVaryingField set by hand so that SDF = trilinear interpolation of the sphere's SDF.
+
+    Embedding column 0 holds the corner SDF; the canonical MLP passes it through as relu(e0) - relu(-e0)
+    and the colour head outputs the constant COLOUR. Θd stays zero-initialised (Δe = 0).
+    """
+    field = TimeVaryingField(**field_kwargs(time))
+    grid = field.grid
+    grid.allocate(sphere_surface(), dilation=1)
+    with torch.no_grad():
+        corners = unpack_keys(grid.corner_keys).float() * grid.voxel_size
+        grid.embeddings.zero_()
+        grid.embeddings[grid.corner_rows, 0] = (corners.norm(dim=-1) - RADIUS) / TRUNCATION
+        linears = [m for m in field.canonical.trunk if isinstance(m, torch.nn.Linear)]
+        for layer in linears:
+            layer.weight.zero_()
+            layer.bias.zero_()
+        linears[0].weight[0, 0], linears[0].weight[1, 0] = 1.0, -1.0
+        for layer in linears[1:]:
+            layer.weight[0, 0] = layer.weight[1, 1] = 1.0
+        head = field.canonical.sdf_head
+        head.weight.zero_()
+        head.bias.zero_()
+        head.weight[0, 0], head.weight[0, 1] = 1.0, -1.0
+        field.canonical.color_head.weight.zero_()
+        field.canonical.color_head.bias.copy_(torch.logit(torch.tensor(COLOUR)))
+    return field.eval()
+
+
+def radial_error(mesh: trimesh.Trimesh) -> np.ndarray:
+    return np.abs(np.linalg.norm(mesh.vertices, axis=1) - RADIUS)
+
+
+def test_sphere_vertices_on_surface_watertight_outward_coloured():
+    res = 0.03
+    mesh = extract_mesh(analytic_sphere(), tau=0.0, resolution=res)
+    assert len(mesh.faces) > 500
+    assert radial_error(mesh).max() < res / 2
+    assert mesh.is_watertight
+    assert mesh.volume > 0  # faces towards free space (positive SDF)
+    assert mesh.volume == pytest.approx(4 / 3 * np.pi * RADIUS**3, rel=0.03)
+    colours = np.asarray(mesh.visual.vertex_colors)
+    assert colours.dtype == np.uint8 and colours.shape == (len(mesh.vertices), 4)
+    assert (colours == np.round(np.array([*COLOUR, 1.0]) * 255).astype(np.uint8)).all()
+
+
+def test_slabs_give_the_same_welded_mesh():
+    field = analytic_sphere()
+    whole = extract_mesh(field, 0.0, resolution=0.03)
+    slabs = extract_mesh(field, 0.0, resolution=0.03, slab_points=300)  # ~2 lattice planes per slab
+    assert slabs.is_watertight
+    assert len(slabs.vertices) == len(whole.vertices) and len(slabs.faces) == len(whole.faces)
+    assert np.allclose(np.sort(slabs.vertices, axis=0), np.sort(whole.vertices, axis=0))
+
+
+def test_no_surface_outside_allocated_voxels():
+    # Only a thin band (no dilation) and only the upper half: the SDF is negative next to
+    # unallocated space all over, which would give spurious walls without the cell mask.
+    field = AnalyticSphere(time=False, voxel_size=0.1, capacity=64)
+    pts = sphere_surface()
+    field.grid.allocate(pts[pts[:, 2] > 0.1], dilation=0)
+    res = 0.02
+    mesh = extract_mesh(field, 0.0, resolution=res)
+    assert len(mesh.faces) > 100
+    assert radial_error(mesh).max() < res / 2
+    z_min = float(field.grid.voxel_coords()[:, 2].min()) * field.grid.voxel_size
+    assert mesh.vertices[:, 2].min() >= z_min - 1e-6
+    inside = field.grid.contains(torch.as_tensor(mesh.vertices, dtype=torch.float32))
+    assert inside.float().mean() > 0.99  # vertices exactly on a voxel face may hash to the empty side
+    assert not mesh.is_watertight  # the open cut at the band's edges stays open
+
+
+def test_empty_grid_and_no_crossing_give_empty_meshes(tmp_path):
+    empty = extract_mesh(AnalyticSphere(time=False, voxel_size=0.1, capacity=8), 0.0, resolution=0.05)
+    assert len(empty.vertices) == 0 and len(empty.faces) == 0
+    far = AnalyticSphere(time=False, voxel_size=0.1, capacity=64)
+    far.grid.allocate(torch.tensor([[2.0, 2.0, 2.0]]), dilation=1)  # all positive there
+    assert len(extract_mesh(far, 0.0, resolution=0.05).faces) == 0
+    path = save_mesh(empty, tmp_path / "empty.ply")
+    assert len(trimesh.load(path, force="mesh", process=False).faces) == 0
+
+
+@pytest.mark.parametrize("time", [True, False])
+def test_real_field_with_known_embeddings(time):
+    field = embedded_sphere(time)
+    res = 0.03
+    a = extract_mesh(field, tau=0.0, resolution=res)
+    b = extract_mesh(field, tau=0.7, resolution=res)  # Θd is zero, so τ changes nothing here
+    assert a.is_watertight and radial_error(a).max() < 0.02  # trilinear interpolation of the SDF
+    assert np.allclose(a.vertices, b.vertices)
+    assert (np.asarray(a.visual.vertex_colors)[:, :3] == np.round(np.array(COLOUR) * 255)).all()
+
+
+def test_save_mesh_is_atomic_and_round_trips(tmp_path):
+    mesh = extract_mesh(analytic_sphere(), 0.0, resolution=0.05)
+    path = save_mesh(mesh, tmp_path / "sub" / "m.ply")
+    back = trimesh.load(path, force="mesh", process=False)
+    assert len(back.faces) == len(mesh.faces) and np.allclose(back.vertices, mesh.vertices, atol=1e-6)
+    assert np.array_equal(np.asarray(back.visual.vertex_colors), np.asarray(mesh.visual.vertex_colors))
+    assert [p.name for p in path.parent.iterdir()] == ["m.ply"]  # no temporary left behind
+
+
+def test_select_mesh_times():
+    stamps = [0.0, 0.1, 0.2, 0.3, 0.4]
+    assert select_mesh_times(stamps) == [0.0, 0.4]
+    assert select_mesh_times([0.5]) == [0.5]
+    assert select_mesh_times(stamps, every=2) == [0.0, 0.2, 0.4]
+    assert select_mesh_times(stamps, times=[0.15, 0.4005]) == [0.15, 0.4]  # clamped within 1 ms
+    with pytest.raises(ValueError, match="outside the recorded range"):
+        select_mesh_times(stamps, times=[0.5])
+    with pytest.raises(ValueError, match="not both"):
+        select_mesh_times(stamps, times=[0.1], every=2)
+    with pytest.raises(ValueError, match="every"):
+        select_mesh_times(stamps, every=0)
+
+
+def saved_run(tmp_path: Path) -> Path:
+    field = embedded_sphere(time=True)
+    stamps = [10.0, 10.1, 10.2]
+    save_checkpoint(tmp_path / "checkpoints" / "slam.pt", field, field_kwargs(True), stamps, torch.eye(4).repeat(3, 1, 1), t0=10.0)
+    return tmp_path
+
+
+def test_mesh_run_every(tmp_path):
+    run_dir = saved_run(tmp_path)
+    written = mesh_run(run_dir, every=1, resolution=0.05, device="cpu")
+    assert [round(t, 3) for t, *_ in written] == [10.0, 10.1, 10.2]
+    assert sorted(p.name for p in (run_dir / "meshes").iterdir()) == ["mesh_t10.000.ply", "mesh_t10.100.ply", "mesh_t10.200.ply"]
+    assert all(n_faces > 0 for _, _, n_faces, _ in written)
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "tivne.mesh", *args], capture_output=True, text=True, timeout=120, cwd=REPO)
+
+
+def test_cli_round_trip_and_errors(tmp_path):
+    run_dir = saved_run(tmp_path)
+    out = run_cli(f"run_dir={run_dir}", "times=[10.0,10.2]", "resolution=0.05")
+    assert out.returncode == 0, out.stderr[-2000:]
+    lines = out.stdout.strip().splitlines()
+    assert len(lines) == 2 and lines[0].startswith("t=10.000s vertices=") and "mesh_t10.200.ply" in lines[1]
+    for name in ("mesh_t10.000.ply", "mesh_t10.200.ply"):
+        mesh = trimesh.load(run_dir / "meshes" / name, force="mesh", process=False)
+        assert len(mesh.faces) > 100 and radial_error(mesh).max() < 0.03
+    assert not (run_dir / "outputs").exists() and not (REPO / "mesh.log").exists()
+
+    out = run_cli(f"run_dir={run_dir}", "times=[11.0]")
+    assert out.returncode == 2 and out.stderr.startswith("error:") and "outside the recorded range" in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
+
+    out = run_cli(f"run_dir={tmp_path / 'nope'}")
+    assert out.returncode == 2 and out.stderr.startswith("error:") and "Traceback" not in out.stderr
