@@ -82,15 +82,22 @@ def bell_weights(sdf: torch.Tensor, sharpness: float) -> torch.Tensor:
     return torch.sigmoid(x) * torch.sigmoid(-x)
 
 
-def first_surface_mask(sdf: torch.Tensor, z: torch.Tensor, truncation: float) -> torch.Tensor:
+def first_surface_mask(
+    sdf: torch.Tensor, z: torch.Tensor, truncation: float, valid: torch.Tensor | None = None
+) -> torch.Tensor:
     """Keep samples up to one truncation behind the first + to - zero crossing (Vox-Fusion).
 
     Args:
         sdf: (N, M), z: (N, M) ascending.
+        valid: (N, M) bool, sample inside the map; a crossing counts only between two valid
+            samples, so the fill value of unmapped samples never fakes a surface (a ray entering a
+            negative region from unmapped space would otherwise render nothing and never be corrected).
     Returns:
         (N, M) bool. Rays without a crossing keep every sample.
     """
     sign_change = (sdf[:, :-1] > 0) & (sdf[:, 1:] <= 0)
+    if valid is not None:
+        sign_change &= valid[:, :-1] & valid[:, 1:]
     has = sign_change.any(dim=1)
     first = sign_change.float().argmax(dim=1)
     z_first = torch.gather(z, 1, first[:, None])
@@ -127,7 +134,7 @@ def render_rays(
     rgb = out.rgb.view(n, m, 3)
     valid = out.valid.view(n, m)
     weights = bell_weights(sdf, 1.0 / truncation) * valid
-    weights = weights * first_surface_mask(sdf, z, truncation)
+    weights = weights * first_surface_mask(sdf, z, truncation, valid)
     rendered = composite(weights, rgb, z)
     return rendered, FieldOutputs(sdf=sdf, rgb=rgb, valid=valid, offset_sq=out.offset_sq.view(n, m))
 

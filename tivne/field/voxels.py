@@ -178,9 +178,11 @@ class SparseVoxelGrid(nn.Module):
         return int(new_keys.numel())
 
     def contains(self, points: torch.Tensor) -> torch.Tensor:
-        """(..., 3) world points -> (...) bool, True inside an allocated voxel."""
-        keys = pack_coords(torch.floor(points / self.voxel_size).long())
-        return sorted_lookup(self.voxel_keys, keys)[1]
+        """(..., 3) world points -> (...) bool, True inside an allocated voxel (False for NaN/inf/huge)."""
+        base = torch.floor(points / self.voxel_size)
+        in_range = torch.isfinite(base).all(-1) & (base.abs() < _OFFSET - 1).all(-1)
+        keys = pack_coords(torch.where(in_range[..., None], base, torch.zeros_like(base)).long())
+        return sorted_lookup(self.voxel_keys, keys)[1] & in_range
 
     def lookup(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Trilinearly interpolated embeddings at points inside allocated voxels.

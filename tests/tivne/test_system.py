@@ -1,0 +1,102 @@
+"""TivNeSLAM driven frame by frame without a Trainer (tivne/system.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+from tivne.geometry import read_tum_trajectory
+from tivne.system import write_metrics
+from tivne.train import build_system
+
+CONF = Path(__file__).resolve().parents[2] / "conf"
+
+
+def smoke_cfg(*overrides: str):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose("config", overrides=["experiment=smoke", "dataset.cache_dir=null", *overrides])
+
+
+@pytest.fixture(scope="module")
+def processed(tiny_cube, tmp_path_factory):
+    """A system fed the tiny cube's first 5 frames by hand (keyframe every 2 frames)."""
+    torch.manual_seed(0)
+    run_dir = tmp_path_factory.mktemp("system")
+    cfg = smoke_cfg("keyframe.every=2", "output.save_every=0")
+    system = build_system(cfg, tiny_cube.intrinsics, run_dir)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # self.log without a Trainer
+        for k in range(5):
+            system.training_step(tiny_cube[k], k)
+    return system, run_dir, tiny_cube
+
+
+def test_first_pose_is_identity_and_one_record_per_frame(processed):
+    system, _, cube = processed
+    traj = system.trajectory()
+    assert traj.shape == (5, 4, 4) and traj.dtype == torch.float64
+    torch.testing.assert_close(traj[0], torch.eye(4, dtype=torch.float64))
+    assert system.timestamps() == [float(cube[k].timestamp) for k in range(5)]
+    assert system.db.frame_ids() == [0, 2, 4]
+    assert system.timers.frames == 5 and len(system.timers.per_frame) == 5
+    assert system.field.grid.num_voxels > 0
+    R = traj[:, :3, :3]
+    torch.testing.assert_close(R @ R.transpose(1, 2), torch.eye(3, dtype=torch.float64).expand(5, 3, 3), atol=1e-5, rtol=0)
+
+
+def test_tracked_trajectory_follows_ground_truth(processed):
+    system, _, _ = processed
+    est, gt = system.gt_pairs()
+    # relative motion of the first to last frame, compared in the first camera's frame
+    gt_rel = torch.linalg.inv(gt[0]) @ gt
+    err = (est[:, :3, 3] - gt_rel[:, :3, 3]).norm(dim=-1)
+    assert float(err.max()) < 0.05
+    result = system.ate()
+    assert result is not None and math.isfinite(float(result.rmse)) and float(result.rmse) < 0.05
+
+
+def test_trajectory_follows_keyframe_refinement(processed):
+    system, _, _ = processed
+    before = system.trajectory()
+    kf = system.db.views[1]  # frame 2
+    old = kf.pose.clone()
+    try:
+        shift = torch.eye(4)
+        shift[0, 3] = 0.1
+        kf.pose = shift @ old
+        after = system.trajectory()
+        # frames recorded against keyframe 1 (frames 2, 3) move with it; the others do not
+        torch.testing.assert_close(after[2:4, 0, 3], before[2:4, 0, 3] + 0.1, atol=1e-5, rtol=0)
+        torch.testing.assert_close(after[[0, 1, 4]], before[[0, 1, 4]])
+    finally:
+        kf.pose = old
+
+
+def test_finalize_writes_run_outputs(processed):
+    system, run_dir, _ = processed
+    metrics = system.finalize()
+    ts, poses = read_tum_trajectory(run_dir / "trajectory.txt")
+    assert len(ts) == 5 and poses.shape == (5, 4, 4)
+    assert (run_dir / "checkpoints" / "slam.pt").is_file()
+    on_disk = json.loads((run_dir / "metrics.json").read_text())
+    assert on_disk["frames"] == 5 and metrics["frames"] == 5
+    assert math.isfinite(on_disk["s_per_frame"]) and on_disk["s_per_frame"] > 0
+    assert on_disk["keyframes"] == 3 and on_disk["voxels"] == system.field.grid.num_voxels
+    assert on_disk["ate_rmse_m"] is not None
+
+
+def test_write_metrics_merges_and_replaces(tmp_path):
+    path = tmp_path / "metrics.json"
+    write_metrics(path, {"frames": 3, "ate_rmse_m": None})
+    write_metrics(path, {"psnr_db": 20.5, "frames": 4})
+    assert json.loads(path.read_text()) == {"frames": 4, "ate_rmse_m": None, "psnr_db": 20.5}
+    path.write_text("{broken")
+    write_metrics(path, {"frames": 1})
+    assert json.loads(path.read_text()) == {"frames": 1}
+    assert not (tmp_path / "metrics.json.tmp").exists()
