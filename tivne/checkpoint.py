@@ -55,8 +55,9 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
         raise ValueError(f"{path}: not a readable TivNe checkpoint ({type(exc).__name__})") from None
     try:
         field = TimeVaryingField(**payload["field_kwargs"])
-        state = payload["field_state"]
+        state = dict(payload["field_state"])
         field.grid.load_sparse_state({k[len("grid."):]: v for k, v in state.items() if k.startswith("grid.")})
+        state.setdefault("grid.voxel_hits", field.grid.voxel_hits)  # format-1 files from before hit counts
         field.load_state_dict(state)
     except (KeyError, TypeError, RuntimeError) as exc:  # written by an incompatible version
         first_line = str(exc).strip().splitlines()[-1].strip()

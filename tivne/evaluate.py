@@ -329,7 +329,7 @@ def flatten_mesh_metrics(per_time: dict[float, dict[str, Any]], first: float, la
 
 
 def load_or_extract_meshes(
-    run_dir: Path, times: Sequence[float], resolution: float, prefer_files: bool = True
+    run_dir: Path, times: Sequence[float], resolution: float, prefer_files: bool = True, min_hits: int = 1
 ) -> tuple[dict[float, trimesh.Trimesh], str | None]:
     """Meshes of the run at ``times`` (SLAM frame).
 
@@ -355,7 +355,7 @@ def load_or_extract_meshes(
         return meshes, f"no mesh file and no checkpoint ({ckpt.name}) for t={missing}"
     field, meta = load_checkpoint(ckpt, device="cuda" if torch.cuda.is_available() else "cpu")
     for t in missing:
-        meshes[t] = extract_mesh(field, time_to_tau(t, meta["t0"], field.time_scale), resolution)
+        meshes[t] = extract_mesh(field, time_to_tau(t, meta["t0"], field.time_scale), resolution, min_hits=min_hits)
     return meshes, None
 
 
@@ -400,6 +400,7 @@ def evaluate_run(
     frame: SlamFrame = "first_camera",
     settings: MeshEvalSettings = MeshEvalSettings(),
     prefer_mesh_files: bool = True,
+    mesh_min_hits: int = 1,
 ) -> dict[str, Any]:
     """Flat, JSON-serialisable metrics of a run directory.
 
@@ -411,6 +412,7 @@ def evaluate_run(
         frame: SLAM -> world transform for the mesh metrics, "first_camera" or "ate".
         settings: thresholds and sample counts.
         prefer_mesh_files: use run_dir/meshes/mesh_t{t:.3f}.ply when present.
+        mesh_min_hits: for extracted meshes, see :func:`tivne.meshing.extract_mesh`.
     Returns:
         ATE keys (``ate_*``), and for datasets with GT geometry ``mesh_t{t:.2f}_<metric>`` per time plus
         ``<metric>_first`` / ``<metric>_last`` summaries; nulls come with a ``*_reason`` key.
@@ -466,7 +468,7 @@ def evaluate_run(
     else:
         raise ValueError(f"frame must be 'first_camera' or 'ate', got {frame!r}")
 
-    meshes, reason = load_or_extract_meshes(run_dir, times, mesh_resolution, prefer_mesh_files)
+    meshes, reason = load_or_extract_meshes(run_dir, times, mesh_resolution, prefer_mesh_files, mesh_min_hits)
     if reason is not None:
         result["mesh_eval_reason"] = reason
     s = settings
@@ -545,6 +547,7 @@ def main(cfg: DictConfig) -> None:
             frame=cfg.frame,
             settings=settings,
             prefer_mesh_files=bool(cfg.prefer_mesh_files),
+            mesh_min_hits=int(cfg.mesh_min_hits),
         )
         merge_metrics_json(run_dir / "metrics.json", metrics)
     except (FileNotFoundError, ValueError, TypeError, MissingMandatoryValue) as exc:

@@ -69,8 +69,11 @@ def mesh_run(
     every: int | None = None,
     resolution: float = 0.02,
     device: str | None = None,
+    min_hits: int = 1,
 ) -> list[tuple[float, int, int, Path]]:
     """Mesh a run's checkpoint at the selected times and write the PLYs.
+
+    ``min_hits``: see :func:`tivne.meshing.extract_mesh` (1 = observed voxels only).
 
     Returns:
         (time s, vertices, faces, path) per mesh.
@@ -86,7 +89,7 @@ def mesh_run(
     field, meta = load_checkpoint(run_dir / "checkpoints" / CHECKPOINT_NAME, device=device)
     written = []
     for ts in select_mesh_times(meta["timestamps"], times, every):
-        mesh = extract_mesh(field, time_to_tau(ts, meta["t0"], field.time_scale), resolution)
+        mesh = extract_mesh(field, time_to_tau(ts, meta["t0"], field.time_scale), resolution, min_hits=min_hits)
         path = save_mesh(mesh, mesh_path(run_dir, ts))
         written.append((ts, len(mesh.vertices), len(mesh.faces), path))
     return written
@@ -98,7 +101,7 @@ def main(cfg: DictConfig) -> None:
         times = cfg.times
         if times is not None and not OmegaConf.is_list(times):
             times = [times]  # times=1.5
-        written = mesh_run(cfg.run_dir, times, cfg.every, float(cfg.resolution), cfg.device)
+        written = mesh_run(cfg.run_dir, times, cfg.every, float(cfg.resolution), cfg.device, int(cfg.min_hits))
     except (FileNotFoundError, ValueError, MissingMandatoryValue) as exc:
         print(f"error: {exc}".splitlines()[0], file=sys.stderr)
         sys.exit(2)

@@ -21,6 +21,7 @@ import trimesh
 from skimage import measure
 
 from tivne.field.networks import TimeVaryingField
+from tivne.field.voxels import CORNER_OFFSETS
 
 # Lattice points per slab: ~100 bytes of temporaries each (coords, keys, volume, mask), ~200 MB per slab.
 DEFAULT_SLAB_POINTS = 1 << 21
@@ -53,6 +54,23 @@ def query_field(
     if not sdf:
         return points.new_zeros(0), points.new_zeros(0, 3)
     return torch.cat(sdf), torch.cat(rgb)
+
+
+def near_observed(grid, points: torch.Tensor, min_hits: int, margin: float) -> torch.Tensor:
+    """Points within ``margin`` (per axis) of a voxel observed in >= ``min_hits`` allocation calls.
+
+    The margin keeps the marching-cubes cells that straddle the face between an observed voxel and
+    its unobserved neighbour (a surface near that face crosses lattice edges reaching into it).
+
+    Args:
+        grid: a SparseVoxelGrid; points: (P, 3) world points.
+    Returns:
+        (P,) bool.
+    """
+    near = torch.zeros(points.shape[0], dtype=torch.bool, device=points.device)
+    for offset in CORNER_OFFSETS.to(points.device, points.dtype):
+        near |= grid.contains(points + (2 * offset - 1) * margin, min_hits)
+    return near
 
 
 def lattice_for_voxels(voxel_coords: torch.Tensor, voxel_size: float, resolution: float) -> tuple[np.ndarray, np.ndarray]:
@@ -127,6 +145,7 @@ def extract_mesh(
     chunk: int = 65536,
     device: str | torch.device | None = None,
     slab_points: int = DEFAULT_SLAB_POINTS,
+    min_hits: int = 0,
 ) -> trimesh.Trimesh:
     """Zero level set of the field at τ as one welded, vertex-coloured mesh in world metres.
 
@@ -137,6 +156,10 @@ def extract_mesh(
         chunk: points per field evaluation.
         device: where to evaluate; default the field's device (a field elsewhere is copied there).
         slab_points: lattice points per slab (bounds the temporaries).
+        min_hits: only mesh within one lattice step of voxels that held depth points in at least
+            this many allocation calls (1: observed space; 0: every allocated voxel, including the
+            dilation shell, where the field was never supervised and marching cubes finds spurious
+            surfaces).
     Returns:
         ``trimesh.Trimesh`` with faces oriented towards free space (positive SDF) and RGBA uint8
         vertex colours from the field's rgb at τ; an empty mesh when no voxel is allocated or the
@@ -167,6 +190,8 @@ def extract_mesh(
         pts = np.concatenate([np.repeat(xs, len(yz))[:, None], np.tile(yz, (len(xs), 1))], 1)
         pts_t = torch.from_numpy(pts).to(device=device, dtype=torch.float32)
         inside = grid.contains(pts_t)
+        if min_hits > 0:
+            inside &= near_observed(grid, pts_t, min_hits, resolution)
         inside_np = inside.cpu().numpy().reshape(len(xs), ny, nz)
         mask = cell_mask(inside_np)
         if mask.any():

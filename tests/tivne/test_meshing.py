@@ -202,3 +202,34 @@ def test_cli_round_trip_and_errors(tmp_path):
 
     out = run_cli(f"run_dir={tmp_path / 'nope'}")
     assert out.returncode == 2 and out.stderr.startswith("error:") and "Traceback" not in out.stderr
+
+
+class SphereWithGhost(AnalyticSphere):
+    """The sphere plus a spurious negative blob in an allocated but never observed voxel, as the
+    unsupervised dilation shell of a real map has them."""
+
+    ghost = torch.zeros(3)
+
+    def forward(self, points: torch.Tensor, tau: torch.Tensor) -> FieldOutputs:
+        out = super().forward(points, tau)
+        blob = ((points - self.ghost).norm(dim=-1) - 0.03) / TRUNCATION
+        out.sdf = torch.where(out.valid, torch.minimum(out.sdf, blob), out.sdf)
+        return out
+
+
+def test_min_hits_keeps_the_mesh_to_observed_voxels():
+    field = SphereWithGhost(time=False, voxel_size=0.1, capacity=64)
+    field.grid.allocate(sphere_surface(), dilation=1)
+    coords, hits = field.grid.voxel_coords(), field.grid.voxel_hits
+    centres = (coords.float() + 0.5) * field.grid.voxel_size
+    # a shell voxel whose 26 neighbours are allocated too, far from the sphere surface
+    far = (centres.norm(dim=-1) - RADIUS).abs() > 0.15
+    field.ghost = centres[torch.nonzero((hits == 0) & far)[0, 0]]
+    with_ghost = extract_mesh(field, 0.0, resolution=0.02)
+    observed = extract_mesh(field, 0.0, resolution=0.02, min_hits=1)
+    near_ghost = lambda mesh: int(((torch.as_tensor(mesh.vertices) - field.ghost.double()).norm(dim=-1) < 0.05).sum())
+    assert near_ghost(with_ghost) > 10 and near_ghost(observed) == 0
+    assert radial_error(observed).max() < 0.01
+    # the sphere itself survives: its area is within 5% of the full extraction's sphere part
+    sphere_part = with_ghost.area - 4 * np.pi * 0.03**2
+    assert abs(observed.area - sphere_part) / sphere_part < 0.05

@@ -120,7 +120,10 @@ def test_allocation_is_idempotent():
     assert grid.allocate(pts) == 0
     assert grid.allocate(pts, dilation=0) == 0
     for k, v in grid.state_dict().items():
-        torch.testing.assert_close(v, state[k])
+        if k == "voxel_hits":  # counts the observations; the map itself is unchanged
+            assert v.tolist() == [3, 3] and state[k].tolist() == [1, 1]
+        else:
+            torch.testing.assert_close(v, state[k])
 
 
 def test_dilation_allocates_chebyshev_neighbourhood():
@@ -259,3 +262,35 @@ def test_contains_non_finite_and_huge_points_is_false():
     grid.allocate(torch.tensor([[0.05, 0.05, 0.05]]))
     pts = torch.tensor([[0.05, 0.05, 0.05], [float("nan"), 0.0, 0.0], [1e9, 0.0, 0.0]])
     assert grid.contains(pts).tolist() == [True, False, False]
+
+
+def test_hits_count_observed_voxels_not_the_dilation_shell():
+    grid = SparseVoxelGrid(voxel_size=0.1, embed_dim=2, capacity=8)
+    point = torch.tensor([[0.05, 0.05, 0.05]])
+    grid.allocate(point, dilation=1)
+    grid.allocate(torch.cat([point, torch.tensor([[0.15, 0.05, 0.05]])]), dilation=1)  # a neighbour is hit once
+    hits = {tuple(c.tolist()): int(h) for c, h in zip(grid.voxel_coords(), grid.voxel_hits)}
+    assert len(hits) == 27 + 9 and hits[(0, 0, 0)] == 2 and hits[(1, 0, 0)] == 1
+    assert sum(h > 0 for h in hits.values()) == 2
+    probe = torch.tensor([[0.05, 0.05, 0.05], [0.15, 0.05, 0.05], [-0.05, 0.05, 0.05], [5.0, 0.0, 0.0]])
+    assert grid.contains(probe).tolist() == [True, True, True, False]
+    assert grid.contains(probe, min_hits=1).tolist() == [True, True, False, False]
+    assert grid.contains(probe, min_hits=2).tolist() == [True, False, False, False]
+    assert not SparseVoxelGrid(voxel_size=0.1, embed_dim=2).contains(probe, min_hits=1).any()
+
+
+def test_hits_survive_a_checkpoint_and_old_checkpoints_count_as_observed(tmp_path):
+    from tivne.checkpoint import load_checkpoint, save_checkpoint
+    from tivne.field.networks import TimeVaryingField
+
+    kwargs = dict(time=False, voxel_size=0.1, embed_dim=4, capacity=8, hidden_dim=8, num_hidden=3, time_frequencies=1)
+    field = TimeVaryingField(**kwargs)
+    field.grid.allocate(torch.tensor([[0.05, 0.05, 0.05], [0.95, 0.05, 0.05]]), dilation=1)
+    path = save_checkpoint(tmp_path / "a.pt", field, kwargs, [0.0], torch.eye(4)[None], 0.0)
+    back, _ = load_checkpoint(path)
+    assert torch.equal(back.grid.voxel_hits, field.grid.voxel_hits) and int((back.grid.voxel_hits > 0).sum()) == 2
+    payload = torch.load(path, weights_only=True)
+    del payload["field_state"]["grid.voxel_hits"]
+    torch.save(payload, tmp_path / "old.pt")
+    old, _ = load_checkpoint(tmp_path / "old.pt")
+    assert (old.grid.voxel_hits == 1).all() and old.grid.num_voxels == field.grid.num_voxels

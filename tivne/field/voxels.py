@@ -93,6 +93,9 @@ class SparseVoxelGrid(nn.Module):
         self.embeddings = nn.Parameter(torch.randn(int(capacity), self.embed_dim) * self.init_std)
         self.register_buffer("voxel_keys", torch.zeros(0, dtype=torch.long))  # (V,) sorted
         self.register_buffer("voxel_corner_rows", torch.zeros(0, 8, dtype=torch.long))  # (V, 8)
+        # (V,) how many allocation calls had a depth point inside the voxel (0: allocated only by
+        # dilation, i.e. never observed); meshing can stay inside observed space with it.
+        self.register_buffer("voxel_hits", torch.zeros(0, dtype=torch.int32))
         self.register_buffer("corner_keys", torch.zeros(0, dtype=torch.long))  # (C,) sorted
         self.register_buffer("corner_rows", torch.zeros(0, dtype=torch.long))  # (C,)
         self.grow_callbacks: list = []  # called with (old_rows, new_rows) after E grows
@@ -147,15 +150,23 @@ class SparseVoxelGrid(nn.Module):
         coords = coords[torch.isfinite(coords).all(-1) & (coords.abs() < _OFFSET - 2).all(-1)].long()
         if coords.numel() == 0:
             return 0
-        keys = torch.unique(pack_coords(coords))
+        hit_keys = torch.unique(pack_coords(coords))
+        keys = hit_keys
         if dilation > 0:
             r = torch.arange(-dilation, dilation + 1, device=device)
             offs = torch.stack(torch.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
             keys = torch.unique(pack_coords(unpack_keys(keys)[:, None, :] + offs).reshape(-1))
         _, found = sorted_lookup(self.voxel_keys, keys)
         new_keys = keys[~found]
-        if new_keys.numel() == 0:
-            return 0
+        if new_keys.numel() > 0:
+            self._insert_voxels(new_keys)
+        pos, _ = sorted_lookup(self.voxel_keys, hit_keys)  # every hit voxel exists now
+        self.voxel_hits[pos] += 1
+        return int(new_keys.numel())
+
+    def _insert_voxels(self, new_keys: torch.Tensor) -> None:
+        """Add voxels (keys not yet present, (Vn,)) and fresh embedding rows for their new corners."""
+        device = self.voxel_keys.device
         # Corners of the new voxels; those not yet present get fresh embedding rows.
         corner_keys = pack_coords(unpack_keys(new_keys)[:, None, :] + CORNER_OFFSETS.to(device))  # (Vn, 8)
         uniq = torch.unique(corner_keys)
@@ -172,17 +183,26 @@ class SparseVoxelGrid(nn.Module):
         new_rows = self.corner_rows[pos]  # (Vn, 8)
         all_vkeys = torch.cat([self.voxel_keys, new_keys])
         all_vrows = torch.cat([self.voxel_corner_rows, new_rows])
+        all_hits = torch.cat([self.voxel_hits, torch.zeros_like(new_keys, dtype=torch.int32)])
         order = torch.argsort(all_vkeys)
         self.voxel_keys = all_vkeys[order]
         self.voxel_corner_rows = all_vrows[order]
-        return int(new_keys.numel())
+        self.voxel_hits = all_hits[order]
 
-    def contains(self, points: torch.Tensor) -> torch.Tensor:
-        """(..., 3) world points -> (...) bool, True inside an allocated voxel (False for NaN/inf/huge)."""
+    def contains(self, points: torch.Tensor, min_hits: int = 0) -> torch.Tensor:
+        """(..., 3) world points -> (...) bool, True inside an allocated voxel (False for NaN/inf/huge).
+
+        ``min_hits`` > 0 keeps only voxels that held depth points in at least that many allocation
+        calls (observed space, not the dilation shell around it).
+        """
         base = torch.floor(points / self.voxel_size)
         in_range = torch.isfinite(base).all(-1) & (base.abs() < _OFFSET - 1).all(-1)
         keys = pack_coords(torch.where(in_range[..., None], base, torch.zeros_like(base)).long())
-        return sorted_lookup(self.voxel_keys, keys)[1] & in_range
+        pos, found = sorted_lookup(self.voxel_keys, keys)
+        found &= in_range
+        if min_hits > 0 and self.num_voxels > 0:
+            found &= self.voxel_hits[pos] >= min_hits
+        return found
 
     def lookup(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Trilinearly interpolated embeddings at points inside allocated voxels.
@@ -212,3 +232,5 @@ class SparseVoxelGrid(nn.Module):
         self.embeddings.data = state["embeddings"].clone()
         for name in ("voxel_keys", "voxel_corner_rows", "corner_keys", "corner_rows"):
             setattr(self, name, state[name].clone())
+        # Checkpoints from before hit counting: treat every voxel as observed.
+        self.voxel_hits = state.get("voxel_hits", torch.ones_like(self.voxel_keys, dtype=torch.int32)).clone()
