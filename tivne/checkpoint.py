@@ -57,7 +57,8 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
         field = TimeVaryingField(**payload["field_kwargs"])
         state = dict(payload["field_state"])
         field.grid.load_sparse_state({k[len("grid."):]: v for k, v in state.items() if k.startswith("grid.")})
-        state.setdefault("grid.voxel_hits", field.grid.voxel_hits)  # format-1 files from before hit counts
+        for name in ("voxel_hits", "dynamic_keys", "dynamic_tau"):  # format-1 files from before hit counts
+            state.setdefault(f"grid.{name}", getattr(field.grid, name))
         field.load_state_dict(state)
     except (KeyError, TypeError, RuntimeError) as exc:  # written by an incompatible version
         first_line = str(exc).strip().splitlines()[-1].strip()

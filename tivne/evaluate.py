@@ -50,7 +50,7 @@ from data_modules.frame import DatasetError
 from tivne.checkpoint import CHECKPOINT_NAME, load_checkpoint, time_to_tau
 from tivne.geometry import backproject, pixel_grid, read_tum_trajectory
 from tivne.mesh import mesh_path
-from tivne.meshing import extract_mesh
+from tivne.meshing import MeshCulling, extract_mesh
 from tivne.metrics import ate_from_trajectories, nearest_distances, sample_mesh_surface
 
 ATE_KEYS = ("ate_rmse_m", "ate_mean_m", "ate_median_m", "ate_std_m", "ate_max_m")
@@ -329,7 +329,7 @@ def flatten_mesh_metrics(per_time: dict[float, dict[str, Any]], first: float, la
 
 
 def load_or_extract_meshes(
-    run_dir: Path, times: Sequence[float], resolution: float, prefer_files: bool = True, min_hits: int = 1
+    run_dir: Path, times: Sequence[float], resolution: float, prefer_files: bool = True, culling: MeshCulling | None = MeshCulling()
 ) -> tuple[dict[float, trimesh.Trimesh], str | None]:
     """Meshes of the run at ``times`` (SLAM frame).
 
@@ -355,7 +355,7 @@ def load_or_extract_meshes(
         return meshes, f"no mesh file and no checkpoint ({ckpt.name}) for t={missing}"
     field, meta = load_checkpoint(ckpt, device="cuda" if torch.cuda.is_available() else "cpu")
     for t in missing:
-        meshes[t] = extract_mesh(field, time_to_tau(t, meta["t0"], field.time_scale), resolution, min_hits=min_hits)
+        meshes[t] = extract_mesh(field, time_to_tau(t, meta["t0"], field.time_scale), resolution, culling=culling)
     return meshes, None
 
 
@@ -400,7 +400,7 @@ def evaluate_run(
     frame: SlamFrame = "first_camera",
     settings: MeshEvalSettings = MeshEvalSettings(),
     prefer_mesh_files: bool = True,
-    mesh_min_hits: int = 1,
+    mesh_culling: MeshCulling | None = MeshCulling(),
 ) -> dict[str, Any]:
     """Flat, JSON-serialisable metrics of a run directory.
 
@@ -412,7 +412,7 @@ def evaluate_run(
         frame: SLAM -> world transform for the mesh metrics, "first_camera" or "ate".
         settings: thresholds and sample counts.
         prefer_mesh_files: use run_dir/meshes/mesh_t{t:.3f}.ply when present.
-        mesh_min_hits: for extracted meshes, see :func:`tivne.meshing.extract_mesh`.
+        mesh_culling: for extracted meshes, see :class:`tivne.meshing.MeshCulling`.
     Returns:
         ATE keys (``ate_*``), and for datasets with GT geometry ``mesh_t{t:.2f}_<metric>`` per time plus
         ``<metric>_first`` / ``<metric>_last`` summaries; nulls come with a ``*_reason`` key.
@@ -468,7 +468,7 @@ def evaluate_run(
     else:
         raise ValueError(f"frame must be 'first_camera' or 'ate', got {frame!r}")
 
-    meshes, reason = load_or_extract_meshes(run_dir, times, mesh_resolution, prefer_mesh_files, mesh_min_hits)
+    meshes, reason = load_or_extract_meshes(run_dir, times, mesh_resolution, prefer_mesh_files, mesh_culling)
     if reason is not None:
         result["mesh_eval_reason"] = reason
     s = settings
@@ -547,7 +547,7 @@ def main(cfg: DictConfig) -> None:
             frame=cfg.frame,
             settings=settings,
             prefer_mesh_files=bool(cfg.prefer_mesh_files),
-            mesh_min_hits=int(cfg.mesh_min_hits),
+            mesh_culling=MeshCulling(int(cfg.mesh_min_hits), cfg.mesh_dynamic_window),
         )
         merge_metrics_json(run_dir / "metrics.json", metrics)
     except (FileNotFoundError, ValueError, TypeError, MissingMandatoryValue) as exc:

@@ -19,7 +19,9 @@ class MappingConfig:
     """iters: steps per mapping round; first_iters: steps on the first frame alone.
     rays: rays per step, ``current_share`` of them from the current frame, the rest split over the
     picked keyframes. every: map every n-th frame. optimize_poses: refine the window's poses
-    (never the first frame's)."""
+    (never the first frame's). final_iters: steps of a last pass over the whole keyframe set after
+    the sequence (windows of ``final_window`` keyframes, rays split evenly, poses fixed): the online
+    window rarely revisits early and middle times, so the field there drifts; 0 = off."""
 
     iters: int = 20
     first_iters: int = 200
@@ -30,6 +32,8 @@ class MappingConfig:
     lr_pose: float = 5e-4
     optimize_poses: bool = False
     every: int = 1
+    final_iters: int = 0
+    final_window: int = 8
 
 
 class Mapper:
@@ -63,8 +67,10 @@ class Mapper:
         render: RenderConfig,
         weights: LossWeights,
         generator: torch.Generator | None = None,
+        current_share: float | None = None,
     ) -> tuple[torch.Tensor, dict[str, float]]:
-        """Optimise the map on ``views`` (views[0] is the current frame).
+        """Optimise the map on ``views`` (views[0] is the current frame, with ``current_share`` of
+        the rays; default the config's).
 
         Returns the refined (V, 4, 4) poses (unchanged where ``fixed``) and the last step's loss terms.
         """
@@ -75,7 +81,8 @@ class Mapper:
         pose_opt = torch.optim.Adam([pose_delta], lr=cfg.lr_pose) if cfg.optimize_poses and movable.any() else None
         pools = [PixelPool.from_masks(v.depth > 0, v.dynamic) for v in views]
         images = [(v.rgb, v.depth, v.dynamic, v.tau) for v in views]
-        n_cur = cfg.rays if len(views) == 1 else int(cfg.rays * cfg.current_share)
+        share = cfg.current_share if current_share is None else current_share
+        n_cur = cfg.rays if len(views) == 1 else int(cfg.rays * share)
         n_other = (cfg.rays - n_cur) // max(len(views) - 1, 1)
         counts = [n_cur] + [n_other] * (len(views) - 1)
         terms: dict[str, torch.Tensor] = {}

@@ -21,7 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue
 
 from tivne.checkpoint import CHECKPOINT_NAME, load_checkpoint, time_to_tau
-from tivne.meshing import extract_mesh, save_mesh
+from tivne.meshing import MeshCulling, extract_mesh, save_mesh
 
 TIME_TOLERANCE_S = 1e-3
 
@@ -69,11 +69,11 @@ def mesh_run(
     every: int | None = None,
     resolution: float = 0.02,
     device: str | None = None,
-    min_hits: int = 1,
+    culling: MeshCulling | None = MeshCulling(),
 ) -> list[tuple[float, int, int, Path]]:
     """Mesh a run's checkpoint at the selected times and write the PLYs.
 
-    ``min_hits``: see :func:`tivne.meshing.extract_mesh` (1 = observed voxels only).
+    ``culling``: see :class:`tivne.meshing.MeshCulling` (default: observed space only).
 
     Returns:
         (time s, vertices, faces, path) per mesh.
@@ -89,7 +89,7 @@ def mesh_run(
     field, meta = load_checkpoint(run_dir / "checkpoints" / CHECKPOINT_NAME, device=device)
     written = []
     for ts in select_mesh_times(meta["timestamps"], times, every):
-        mesh = extract_mesh(field, time_to_tau(ts, meta["t0"], field.time_scale), resolution, min_hits=min_hits)
+        mesh = extract_mesh(field, time_to_tau(ts, meta["t0"], field.time_scale), resolution, culling=culling)
         path = save_mesh(mesh, mesh_path(run_dir, ts))
         written.append((ts, len(mesh.vertices), len(mesh.faces), path))
     return written
@@ -101,7 +101,7 @@ def main(cfg: DictConfig) -> None:
         times = cfg.times
         if times is not None and not OmegaConf.is_list(times):
             times = [times]  # times=1.5
-        written = mesh_run(cfg.run_dir, times, cfg.every, float(cfg.resolution), cfg.device, int(cfg.min_hits))
+        written = mesh_run(cfg.run_dir, times, cfg.every, float(cfg.resolution), cfg.device, MeshCulling(int(cfg.min_hits), cfg.dynamic_window))
     except (FileNotFoundError, ValueError, MissingMandatoryValue) as exc:
         print(f"error: {exc}".splitlines()[0], file=sys.stderr)
         sys.exit(2)

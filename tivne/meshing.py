@@ -11,6 +11,7 @@ without seams.
 from __future__ import annotations
 
 import copy
+from dataclasses import dataclass
 import os
 import tempfile
 from pathlib import Path
@@ -56,8 +57,28 @@ def query_field(
     return torch.cat(sdf), torch.cat(rgb)
 
 
-def near_observed(grid, points: torch.Tensor, min_hits: int, margin: float) -> torch.Tensor:
-    """Points within ``margin`` (per axis) of a voxel observed in >= ``min_hits`` allocation calls.
+@dataclass(frozen=True)
+class MeshCulling:
+    """Which allocated space a mesh may show (only observed space by default).
+
+    min_hits: lattice points must lie within one lattice step of a voxel that held static depth
+        points in at least this many frames; the rest of the allocation (the dilation shell, never
+        supervised) is where marching cubes finds spurious surfaces. 0 = every allocated voxel.
+    dynamic_window: also voxels where a moving object was seen within this τ distance of the mesh's
+        τ, so the object shows where it was seen around then and not along its trail; None: voxels
+        that only ever held moving objects are never meshed.
+    """
+
+    min_hits: int = 1
+    dynamic_window: float | None = 0.2
+
+
+def near_observed(
+    grid, points: torch.Tensor, min_hits: int, margin: float, tau: float | None = None, window: float = 0.0
+) -> torch.Tensor:
+    """Points within ``margin`` (per axis) of an observed voxel: one with >= ``min_hits`` static
+    hits, or (``tau`` given) one where a moving object was seen within ``window`` of ``tau``
+    (see ``SparseVoxelGrid.observed``).
 
     The margin keeps the marching-cubes cells that straddle the face between an observed voxel and
     its unobserved neighbour (a surface near that face crosses lattice edges reaching into it).
@@ -69,7 +90,7 @@ def near_observed(grid, points: torch.Tensor, min_hits: int, margin: float) -> t
     """
     near = torch.zeros(points.shape[0], dtype=torch.bool, device=points.device)
     for offset in CORNER_OFFSETS.to(points.device, points.dtype):
-        near |= grid.contains(points + (2 * offset - 1) * margin, min_hits)
+        near |= grid.observed(points + (2 * offset - 1) * margin, min_hits, tau, window)
     return near
 
 
@@ -145,7 +166,7 @@ def extract_mesh(
     chunk: int = 65536,
     device: str | torch.device | None = None,
     slab_points: int = DEFAULT_SLAB_POINTS,
-    min_hits: int = 0,
+    culling: MeshCulling | None = None,
 ) -> trimesh.Trimesh:
     """Zero level set of the field at τ as one welded, vertex-coloured mesh in world metres.
 
@@ -156,10 +177,7 @@ def extract_mesh(
         chunk: points per field evaluation.
         device: where to evaluate; default the field's device (a field elsewhere is copied there).
         slab_points: lattice points per slab (bounds the temporaries).
-        min_hits: only mesh within one lattice step of voxels that held depth points in at least
-            this many allocation calls (1: observed space; 0: every allocated voxel, including the
-            dilation shell, where the field was never supervised and marching cubes finds spurious
-            surfaces).
+        culling: keep the mesh to observed space (:class:`MeshCulling`); None: every allocated voxel.
     Returns:
         ``trimesh.Trimesh`` with faces oriented towards free space (positive SDF) and RGBA uint8
         vertex colours from the field's rgb at τ; an empty mesh when no voxel is allocated or the
@@ -190,8 +208,9 @@ def extract_mesh(
         pts = np.concatenate([np.repeat(xs, len(yz))[:, None], np.tile(yz, (len(xs), 1))], 1)
         pts_t = torch.from_numpy(pts).to(device=device, dtype=torch.float32)
         inside = grid.contains(pts_t)
-        if min_hits > 0:
-            inside &= near_observed(grid, pts_t, min_hits, resolution)
+        if culling is not None and (culling.min_hits > 0 or culling.dynamic_window is not None):
+            window = culling.dynamic_window
+            inside &= near_observed(grid, pts_t, culling.min_hits, resolution, None if window is None else tau, window or 0.0)
         inside_np = inside.cpu().numpy().reshape(len(xs), ny, nz)
         mask = cell_mask(inside_np)
         if mask.any():

@@ -30,12 +30,15 @@ from tivne.tracking import TrackingConfig, frozen, predict_pose, track_frame
 @dataclass(frozen=True)
 class OutputConfig:
     """mesh_times: seconds on the sequence clock, or empty for the first and last frame.
-    mesh_resolution: marching-cubes lattice step (m). image_every: log rendered images every n
+    mesh_resolution: marching-cubes lattice step (m). mesh_min_hits, mesh_dynamic_window: see
+    :class:`tivne.meshing.MeshCulling` (observed space only). image_every: log rendered images every n
     frames (0 = never). save_every: rewrite trajectory.txt every n frames so an interrupted run
     keeps its results. allocation_stride: back-project every n-th pixel when allocating voxels."""
 
     mesh_times: tuple[float, ...] = ()
     mesh_resolution: float = 0.02
+    mesh_min_hits: int = 1
+    mesh_dynamic_window: float | None = 0.2
     image_every: int = 50
     save_every: int = 25
     allocation_stride: int = 4
@@ -58,6 +61,7 @@ class Timers:
     track_iters: int = 0
     map_s: float = 0.0
     map_iters: int = 0
+    refine_s: float = 0.0
     frames: int = 0
     wall_s: float = 0.0
     per_frame: list[float] = dc_field(default_factory=list)
@@ -102,6 +106,7 @@ class TivNeSLAM(L.LightningModule):
         self.tracked: list[torch.Tensor] = []  # latest absolute poses, for the motion model
         self.t0: float | None = None
         self.last_mapped_tau = 0.0
+        self.last_view: View | None = None
         self.timers = Timers()
         self.generator = torch.Generator().manual_seed(seed)
         self.last_metrics: dict[str, Any] = {}
@@ -144,6 +149,7 @@ class TivNeSLAM(L.LightningModule):
             with frozen(self.field), torch.no_grad():
                 mask = self.masks(frame, MaskContext(self.field, pose, self.K, tau, self.render_cfg, k, last_mapped_tau=self.last_mapped_tau))
         view = View(k, tau, frame.rgb, frame.depth, mask, pose)
+        self.masks.revise(self.db.views, view, self.K)  # what this frame shows about earlier keyframes
         if k == 0:
             self._allocate(view)
         if self.db.should_insert(k):
@@ -153,6 +159,7 @@ class TivNeSLAM(L.LightningModule):
             self.last_mapped_tau = tau
         self._allocate(view)
         self._record(frame, view)
+        self.last_view = view
         self.timers.frames += 1
         elapsed = time.perf_counter() - start
         self.timers.per_frame.append(elapsed)
@@ -186,7 +193,8 @@ class TivNeSLAM(L.LightningModule):
         uv = torch.stack([u[valid], v[valid]], dim=-1).float()
         cam = backproject(uv, depth[valid], self.K)
         world = (view.pose[:3, :3] @ cam.T).T + view.pose[:3, 3]
-        self.field.grid.allocate(world, dilation=self.field.allocation_dilation)
+        dynamic = None if view.dynamic is None else view.dynamic[::s, ::s][valid]
+        self.field.grid.allocate(world, dilation=self.field.allocation_dilation, dynamic=dynamic, tau=view.tau)
 
     def _record(self, frame: Frame, view: View) -> None:
         kf = len(self.db) - 1
@@ -282,7 +290,36 @@ class TivNeSLAM(L.LightningModule):
         }
 
     def on_train_end(self) -> None:
+        self.refine_map()
         self.finalize()
+
+    def refine_map(self) -> dict[str, float]:
+        """Final pass over the whole sequence (Co-SLAM's final global BA, poses fixed):
+        ``mapping.final_iters`` steps in rounds of ``mapping.iters``, each over a window of
+        ``mapping.final_window`` keyframes (plus the last frame) drawn without replacement from a
+        shuffled cycle, so every time is revisited about equally often."""
+        cfg = self.mapping_cfg
+        views = list(self.db.views)
+        if self.last_view is not None and (not views or views[-1] is not self.last_view):
+            views.append(self.last_view)
+        if cfg.final_iters <= 0 or not views:
+            return {}
+        start = time.perf_counter()
+        window = max(1, min(cfg.final_window, len(views)))
+        order: list[int] = []
+        done, terms = 0, {}
+        while done < cfg.final_iters:
+            while len(order) < window:
+                order += [i for i in torch.randperm(len(views), generator=self.generator).tolist() if i not in order[:window]]
+            picked, order = order[:window], order[window:]
+            iters = min(cfg.iters, cfg.final_iters - done)
+            _, terms = self.mapper.run(
+                [views[i] for i in picked], [True] * window, iters, self.K, self.sampler, self.render_cfg,
+                self.loss_weights, self.generator, current_share=1.0 / window,
+            )
+            done += iters
+        self.timers.refine_s = time.perf_counter() - start
+        return terms
 
     def finalize(self) -> dict[str, Any]:
         """Write trajectory.txt, the checkpoint, renders, meshes and metrics.json into the run dir."""
@@ -302,6 +339,7 @@ class TivNeSLAM(L.LightningModule):
             "s_per_frame_after_first": float(np.mean(t.per_frame[1:])) if len(t.per_frame) > 1 else None,
             "track_ms_per_iter": 1000 * t.track_s / t.track_iters if t.track_iters else None,
             "map_ms_per_iter": 1000 * t.map_s / t.map_iters if t.map_iters else None,
+            "final_refine_s": t.refine_s,
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "voxels": self.field.grid.num_voxels,
             "embedding_rows": self.field.grid.num_corners,
@@ -335,7 +373,7 @@ class TivNeSLAM(L.LightningModule):
 
     def _write_meshes(self) -> dict[str, Any]:
         try:
-            from tivne.meshing import extract_mesh, save_mesh
+            from tivne.meshing import MeshCulling, extract_mesh, save_mesh
         except ImportError as exc:  # meshing is optional at import time only while developing
             return {"mesh_reason": f"meshing unavailable: {exc}"}
         times = list(self.output_cfg.mesh_times) or [self.records[0].timestamp, self.records[-1].timestamp]
@@ -344,7 +382,9 @@ class TivNeSLAM(L.LightningModule):
         result: dict[str, Any] = {}
         for ts in times:
             tau = time_to_tau(ts, self.t0, self.field.time_scale)
-            mesh = extract_mesh(self.field, tau, resolution=self.output_cfg.mesh_resolution)
+            mesh = extract_mesh(
+                self.field, tau, resolution=self.output_cfg.mesh_resolution, culling=MeshCulling(self.output_cfg.mesh_min_hits, self.output_cfg.mesh_dynamic_window),
+            )
             save_mesh(mesh, out / f"mesh_t{ts:.3f}.ply")
             result[f"mesh_t{ts:.3f}_faces"] = int(len(mesh.faces))
         return result

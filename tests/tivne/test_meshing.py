@@ -15,7 +15,7 @@ from tivne.checkpoint import save_checkpoint
 from tivne.field.networks import FieldOutputs, TimeVaryingField
 from tivne.field.voxels import unpack_keys
 from tivne.mesh import mesh_run, select_mesh_times
-from tivne.meshing import extract_mesh, save_mesh
+from tivne.meshing import MeshCulling, extract_mesh, save_mesh
 
 RADIUS = 0.3
 TRUNCATION = 0.05
@@ -226,10 +226,43 @@ def test_min_hits_keeps_the_mesh_to_observed_voxels():
     far = (centres.norm(dim=-1) - RADIUS).abs() > 0.15
     field.ghost = centres[torch.nonzero((hits == 0) & far)[0, 0]]
     with_ghost = extract_mesh(field, 0.0, resolution=0.02)
-    observed = extract_mesh(field, 0.0, resolution=0.02, min_hits=1)
+    observed = extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1))
     near_ghost = lambda mesh: int(((torch.as_tensor(mesh.vertices) - field.ghost.double()).norm(dim=-1) < 0.05).sum())
     assert near_ghost(with_ghost) > 10 and near_ghost(observed) == 0
     assert radial_error(observed).max() < 0.01
     # the sphere itself survives: its area is within 5% of the full extraction's sphere part
     sphere_part = with_ghost.area - 4 * np.pi * 0.03**2
     assert abs(observed.area - sphere_part) / sphere_part < 0.05
+
+
+class MovingBall(AnalyticSphere):
+    """A ball of radius 0.15 that the field (wrongly) still holds at both places it was seen: at
+    x = -0.5 when τ = 0 and at x = +0.5 when τ = 1 (a trail the field has not forgotten)."""
+
+    def forward(self, points: torch.Tensor, tau: torch.Tensor) -> FieldOutputs:
+        out = super().forward(points, tau)
+        centres = torch.tensor([[-0.5, 0.0, 0.0], [0.5, 0.0, 0.0]])
+        d = ((points[:, None, :] - centres).norm(dim=-1).min(dim=1).values - 0.15) / TRUNCATION
+        out.sdf = torch.where(out.valid, d, out.sdf)
+        return out
+
+
+def ball_surface(centre_x: float) -> torch.Tensor:
+    return sphere_surface(radius=0.15) + torch.tensor([centre_x, 0.0, 0.0])
+
+
+def test_dynamic_window_shows_a_moving_object_only_where_it_was_seen_then():
+    field = MovingBall(time=True, voxel_size=0.1, capacity=64)
+    for tau, x in ((0.0, -0.5), (1.0, 0.5)):
+        pts = ball_surface(x)
+        field.grid.allocate(pts, dilation=1, dynamic=torch.ones(len(pts), dtype=torch.bool), tau=tau)
+    sides = lambda mesh: (int((mesh.vertices[:, 0] < 0).sum()), int((mesh.vertices[:, 0] > 0).sum()))
+    at0 = extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1, dynamic_window=0.2))
+    at1 = extract_mesh(field, 1.0, resolution=0.02, culling=MeshCulling(min_hits=1, dynamic_window=0.2))
+    assert sides(at0)[0] > 100 and sides(at0)[1] == 0
+    assert sides(at1)[0] == 0 and sides(at1)[1] > 100
+    assert at0.is_watertight and at1.is_watertight  # the whole ball, no cut
+    unculled = extract_mesh(field, 0.0, resolution=0.02)
+    assert min(sides(unculled)) > 100  # the trail is in the field itself
+    never = extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1, dynamic_window=None))
+    assert len(never.faces) == 0

@@ -100,3 +100,31 @@ def test_write_metrics_merges_and_replaces(tmp_path):
     write_metrics(path, {"frames": 1})
     assert json.loads(path.read_text()) == {"frames": 1}
     assert not (tmp_path / "metrics.json.tmp").exists()
+
+
+def test_refine_map_cycles_through_every_keyframe_with_fixed_poses(processed, monkeypatch):
+    import dataclasses
+
+    system, _, _ = processed
+    calls = []
+    real_run = system.mapper.run
+
+    def recording_run(views, fixed, iters, *args, **kwargs):
+        calls.append(([v.frame_id for v in views], list(fixed), iters, kwargs.get("current_share")))
+        return real_run(views, fixed, iters, *args, **kwargs)
+
+    monkeypatch.setattr(system.mapper, "run", recording_run)
+    monkeypatch.setattr(system, "mapping_cfg", dataclasses.replace(system.mapping_cfg, iters=3, final_iters=8, final_window=2))
+    poses = [v.pose.clone() for v in system.db.views]
+    terms = system.refine_map()
+    assert [c[2] for c in calls] == [3, 3, 2]  # 8 steps in rounds of mapping.iters
+    for ids, fixed, _, share in calls:  # distinct keyframes per window, poses fixed, rays split evenly
+        assert len(set(ids)) == 2 and all(fixed) and share == 0.5
+    visited = [i for c in calls for i in c[0]]
+    assert set(visited[:3]) == {0, 2, 4}  # a shuffled cycle: all keyframes before any repeats
+    assert all(torch.equal(v.pose, p) for v, p in zip(system.db.views, poses))
+    assert math.isfinite(terms["total"]) and system.timers.refine_s > 0
+
+    calls.clear()
+    monkeypatch.setattr(system, "mapping_cfg", dataclasses.replace(system.mapping_cfg, final_iters=0))
+    assert system.refine_map() == {} and calls == []

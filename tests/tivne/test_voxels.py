@@ -294,3 +294,17 @@ def test_hits_survive_a_checkpoint_and_old_checkpoints_count_as_observed(tmp_pat
     torch.save(payload, tmp_path / "old.pt")
     old, _ = load_checkpoint(tmp_path / "old.pt")
     assert (old.grid.voxel_hits == 1).all() and old.grid.num_voxels == field.grid.num_voxels
+
+
+def test_dynamic_points_record_voxel_and_time_instead_of_hits():
+    grid = SparseVoxelGrid(voxel_size=0.1, embed_dim=2, capacity=8)
+    pts = torch.tensor([[0.05, 0.05, 0.05], [1.05, 0.05, 0.05]])
+    grid.allocate(pts, dynamic=torch.tensor([False, True]), tau=0.5)
+    grid.allocate(torch.tensor([[2.05, 0.05, 0.05]]), dynamic=torch.tensor([True]), tau=2.0)
+    assert grid.num_voxels == 3 and int((grid.voxel_hits > 0).sum()) == 1
+    assert unpack_keys(grid.dynamic_keys).tolist() == [[10, 0, 0], [20, 0, 0]] and grid.dynamic_tau.tolist() == [0.5, 2.0]
+    probe = torch.tensor([[0.05, 0.05, 0.05], [1.05, 0.05, 0.05], [2.05, 0.05, 0.05]])
+    assert grid.observed(probe).tolist() == [True, False, False]  # no time: static hits only
+    assert grid.observed(probe, tau=0.6, window=0.2).tolist() == [True, True, False]
+    assert grid.observed(probe, tau=1.9, window=0.2).tolist() == [True, False, True]
+    assert grid.observed(probe, tau=1.0, window=0.2).tolist() == [True, False, False]

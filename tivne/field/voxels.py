@@ -93,9 +93,13 @@ class SparseVoxelGrid(nn.Module):
         self.embeddings = nn.Parameter(torch.randn(int(capacity), self.embed_dim) * self.init_std)
         self.register_buffer("voxel_keys", torch.zeros(0, dtype=torch.long))  # (V,) sorted
         self.register_buffer("voxel_corner_rows", torch.zeros(0, 8, dtype=torch.long))  # (V, 8)
-        # (V,) how many allocation calls had a depth point inside the voxel (0: allocated only by
-        # dilation, i.e. never observed); meshing can stay inside observed space with it.
+        # (V,) how many allocation calls had a static depth point inside the voxel (0: allocated only
+        # by dilation or only ever held moving objects); meshing can stay inside observed space with it.
         self.register_buffer("voxel_hits", torch.zeros(0, dtype=torch.int32))
+        # (D,) one row per (voxel, time) a moving object's depth point fell inside the voxel, so a
+        # mesh at time τ can show moving objects only where they were seen around τ.
+        self.register_buffer("dynamic_keys", torch.zeros(0, dtype=torch.long))
+        self.register_buffer("dynamic_tau", torch.zeros(0, dtype=torch.float32))
         self.register_buffer("corner_keys", torch.zeros(0, dtype=torch.long))  # (C,) sorted
         self.register_buffer("corner_rows", torch.zeros(0, dtype=torch.long))  # (C,)
         self.grow_callbacks: list = []  # called with (old_rows, new_rows) after E grows
@@ -133,12 +137,18 @@ class SparseVoxelGrid(nn.Module):
             callback(old, new_cap)
 
     @torch.no_grad()
-    def allocate(self, points: torch.Tensor, dilation: int = 0) -> int:
-        """Allocate the voxels containing ``points`` (and their ``dilation``-neighbourhood).
+    def allocate(
+        self, points: torch.Tensor, dilation: int = 0, dynamic: torch.Tensor | None = None, tau: float = 0.0
+    ) -> int:
+        """Allocate the voxels containing ``points`` (and their ``dilation``-neighbourhood) and count
+        the observation: static points add a hit to their voxels, points flagged ``dynamic`` record
+        (voxel, ``tau``) rows instead.
 
         Args:
             points: (N, 3) world points in metres.
             dilation: also allocate voxels within this many voxels (Chebyshev) of each hit voxel.
+            dynamic: (N,) bool, the point lies on a moving object (None: all static).
+            tau: the observation's time.
         Returns:
             number of newly allocated voxels.
         """
@@ -147,11 +157,15 @@ class SparseVoxelGrid(nn.Module):
         device = self.voxel_keys.device
         coords = torch.floor(points.to(device) / self.voxel_size)
         # A diverged pose must not take the run down: only allocate where a key exists.
-        coords = coords[torch.isfinite(coords).all(-1) & (coords.abs() < _OFFSET - 2).all(-1)].long()
+        ok = torch.isfinite(coords).all(-1) & (coords.abs() < _OFFSET - 2).all(-1)
+        is_dynamic = torch.zeros_like(ok) if dynamic is None else dynamic.to(device).bool() & ok
+        coords = coords[ok].long()
         if coords.numel() == 0:
             return 0
-        hit_keys = torch.unique(pack_coords(coords))
-        keys = hit_keys
+        all_keys = pack_coords(coords)
+        keys = torch.unique(all_keys)
+        dyn_keys = torch.unique(all_keys[is_dynamic[ok]])
+        hit_keys = torch.unique(all_keys[~is_dynamic[ok]])
         if dilation > 0:
             r = torch.arange(-dilation, dilation + 1, device=device)
             offs = torch.stack(torch.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
@@ -162,6 +176,9 @@ class SparseVoxelGrid(nn.Module):
             self._insert_voxels(new_keys)
         pos, _ = sorted_lookup(self.voxel_keys, hit_keys)  # every hit voxel exists now
         self.voxel_hits[pos] += 1
+        if dyn_keys.numel():
+            self.dynamic_keys = torch.cat([self.dynamic_keys, dyn_keys])
+            self.dynamic_tau = torch.cat([self.dynamic_tau, torch.full(dyn_keys.shape, float(tau), device=device)])
         return int(new_keys.numel())
 
     def _insert_voxels(self, new_keys: torch.Tensor) -> None:
@@ -204,6 +221,20 @@ class SparseVoxelGrid(nn.Module):
             found &= self.voxel_hits[pos] >= min_hits
         return found
 
+    def observed(self, points: torch.Tensor, min_hits: int = 1, tau: float | None = None, window: float = 0.0) -> torch.Tensor:
+        """(..., 3) world points -> (...) bool: inside a voxel with >= ``min_hits`` static hits, or
+        (``tau`` given) one where a moving object was observed at a time within ``window`` of ``tau``."""
+        out = self.contains(points, min_hits)
+        if tau is None or self.dynamic_keys.numel() == 0:
+            return out
+        recent = torch.unique(self.dynamic_keys[(self.dynamic_tau - float(tau)).abs() <= window])
+        if recent.numel() == 0:
+            return out
+        base = torch.floor(points / self.voxel_size)
+        in_range = torch.isfinite(base).all(-1) & (base.abs() < _OFFSET - 1).all(-1)
+        keys = pack_coords(torch.where(in_range[..., None], base, torch.zeros_like(base)).long())
+        return out | (sorted_lookup(recent, keys)[1] & in_range)
+
     def lookup(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Trilinearly interpolated embeddings at points inside allocated voxels.
 
@@ -234,3 +265,5 @@ class SparseVoxelGrid(nn.Module):
             setattr(self, name, state[name].clone())
         # Checkpoints from before hit counting: treat every voxel as observed.
         self.voxel_hits = state.get("voxel_hits", torch.ones_like(self.voxel_keys, dtype=torch.int32)).clone()
+        self.dynamic_keys = state.get("dynamic_keys", torch.zeros(0, dtype=torch.long)).clone()
+        self.dynamic_tau = state.get("dynamic_tau", torch.zeros(0, dtype=torch.float32)).clone()
