@@ -57,6 +57,12 @@ class MaskProvider:
         """A mask for ``frame`` before its pose is known (for tracking); None = unknown."""
         return None
 
+    def revise(self, keyframes: list, current, K: torch.Tensor) -> int:
+        """Grow earlier keyframes' masks in place with what ``current`` (a tracked View) shows about
+        them (a moving object is often only recognisable once it has moved away); returns how many
+        masks grew. Default: masks are final."""
+        return 0
+
 
 class NoMasks(MaskProvider):
     """No motion masks: uniform sampling, no offset loss."""
@@ -348,6 +354,18 @@ def march_map_depth(
 
 
 @torch.no_grad()
+def upsample_mask(low: torch.Tensor, stride: int, like: torch.Tensor) -> torch.Tensor:
+    """(h, w) bool mask of every ``stride``-th pixel -> (H, W) bool like ``like`` (nearest; the
+    border beyond a multiple of the stride stays False)."""
+    h, w = like.shape[-2:]
+    full = low.to(like.device).repeat_interleave(stride, 0).repeat_interleave(stride, 1)[:h, :w]
+    if full.shape != (h, w):
+        pad = torch.zeros(h, w, dtype=torch.bool, device=like.device)
+        pad[: full.shape[0], : full.shape[1]] = full
+        full = pad
+    return full
+
+
 def free_space_seeds(
     depth: torch.Tensor,
     pose: torch.Tensor,
@@ -435,6 +453,7 @@ class GeometricMasks(MaskProvider):
         abs_jump: float = 0.03,
         temporal: bool = True,
         predict_margin: int = 2,
+        revise_lags: tuple[int, int] | None = (5, 30),
     ) -> None:
         if source not in ("frames", "map"):
             raise ValueError(f"masks.source must be 'frames' or 'map', got {source!r}")
@@ -457,6 +476,7 @@ class GeometricMasks(MaskProvider):
             keep_fraction=keep_fraction, max_area_fraction=max_area_fraction, rel_jump=rel_jump, abs_jump=abs_jump,
         )
         self.temporal = temporal
+        self.revise_lags = None if revise_lags is None else (int(revise_lags[0]), int(revise_lags[1]))
         self.predict_margin = int(predict_margin)
         self.previous: np.ndarray | None = None  # low-resolution mask of the previous frame
         self._previous_tau: float | None = None
@@ -477,9 +497,7 @@ class GeometricMasks(MaskProvider):
         start = time.perf_counter()
         h, w = frame.height, frame.width
         s = self.stride
-        device = frame.depth.device
         depth = frame.depth[::s, ::s]
-        hs, ws = depth.shape
         if context is None or context.frame_number == 0:
             self._previous_tau = None if context is None else float(context.tau)
             self.previous = None
@@ -497,13 +515,7 @@ class GeometricMasks(MaskProvider):
         self.last_debug = {"seeds": seeds.cpu().numpy()}
         if rd is not None:
             self.last_debug |= {"rendered": rd.cpu().numpy(), "known": known.cpu().numpy()}
-        full = torch.from_numpy(low).to(device)
-        full = full.repeat_interleave(s, 0).repeat_interleave(s, 1)[:h, :w]
-        if full.shape != (h, w):  # frame size not a multiple of the stride
-            pad = torch.zeros(h, w, dtype=torch.bool, device=device)
-            pad[: full.shape[0], : full.shape[1]] = full
-            full = pad
-        full = full & (frame.depth > 0)
+        full = upsample_mask(torch.from_numpy(low), s, frame.depth) & (frame.depth > 0)
         self.timings_ms.append(1000 * (time.perf_counter() - start))
         return full
 
@@ -517,13 +529,34 @@ class GeometricMasks(MaskProvider):
         r = self.predict_margin
         if r > 0:
             low = torch.nn.functional.max_pool2d(low, 2 * r + 1, stride=1, padding=r)
-        s, h, w = self.stride, frame.height, frame.width
-        full = (low[0, 0] > 0).repeat_interleave(s, 0).repeat_interleave(s, 1)[:h, :w].to(frame.depth.device)
-        if full.shape != (h, w):
-            pad = torch.zeros(h, w, dtype=torch.bool, device=frame.depth.device)
-            pad[: full.shape[0], : full.shape[1]] = full
-            full = pad
-        return full
+        return upsample_mask(low[0, 0] > 0, self.stride, frame.depth)
+
+    def revise(self, keyframes: list, current, K: torch.Tensor) -> int:
+        """The static-world test backwards: a keyframe's points that the current frame sees as free
+        space have moved away since. With ``revise_lags`` = (a, b), keyframes a..b frames back are
+        re-tested against the current frame and their masks grow by the cleaned result (never
+        shrink), so the object is masked in them -- and in mapping -- even where it was still too
+        slow to be caught when they were taken (``source='frames'`` only)."""
+        if self.source != "frames" or self.revise_lags is None or current.dynamic is None:
+            return 0
+        s = self.stride
+        lo, hi = self.revise_lags
+        ref_depth = current.depth[::s, ::s]
+        Kl = self._low_K(K)
+        grown = 0
+        for kf in keyframes:
+            if not lo <= current.frame_id - kf.frame_id <= hi:
+                continue
+            depth = kf.depth[::s, ::s]
+            seeds, _ = free_space_seeds(depth, kf.pose, ref_depth, current.pose, Kl, self.abs_threshold, self.k_sigma)
+            old = None if kf.dynamic is None else kf.dynamic[::s, ::s].cpu().numpy()
+            low = clean_mask(seeds.cpu().numpy(), depth.cpu().numpy(), old, **self.clean_kwargs)
+            full = upsample_mask(torch.from_numpy(low), s, kf.depth) & (kf.depth > 0)
+            new = full if kf.dynamic is None else full | kf.dynamic
+            if kf.dynamic is None or bool((new & ~kf.dynamic).any()):
+                kf.dynamic = new
+                grown += 1
+        return grown
 
     def _low_K(self, K: torch.Tensor) -> torch.Tensor:
         Kl = K.clone()
@@ -588,6 +621,9 @@ class RecordingMasks(MaskProvider):
 
     def predict(self, frame: Frame) -> torch.Tensor | None:
         return self.inner.predict(frame)
+
+    def revise(self, keyframes: list, current, K: torch.Tensor) -> int:
+        return self.inner.revise(keyframes, current, K)
 
     def __call__(self, frame: Frame, context: MaskContext | None) -> torch.Tensor | None:
         mask = self.inner(frame, context)

@@ -346,3 +346,24 @@ def test_geometric_predict_gives_tracking_the_previous_mask_grown():
     mask = provider(make_frame(1, depth=depth), ctx(1))
     pred = RecordingMasks(provider).predict(make_frame(2, depth=depth))
     assert pred.shape == (H, W) and (pred & mask).sum() == mask.sum() and pred.sum() > mask.sum()
+
+
+def test_geometric_revise_masks_an_earlier_keyframe_once_the_object_has_left():
+    from tivne.keyframes import View
+
+    K = Intrinsics(50.0, 50.0, W / 2, H / 2, W, H).K()
+    then_d, then = box_depth(K, -0.5, -0.1, -0.3, 0.1, 1.5)  # the keyframe saw the box here, unmasked
+    now_d, _ = box_depth(K, 0.2, 0.6, -0.3, 0.1, 1.5)  # it has left that place since
+    rgb = torch.full((H, W, 3), 0.5)
+    keyframe = View(0, 0.0, rgb, then_d, torch.zeros(H, W, dtype=torch.bool), torch.eye(4))
+    too_recent = View(8, 8 / 30, rgb, then_d, None, torch.eye(4))
+    current = View(10, 10 / 30, rgb, now_d, torch.zeros(H, W, dtype=torch.bool), torch.eye(4))
+    provider = GeometricMasks(source="frames", stride=1, min_area=4, revise_lags=(5, 30))
+    assert provider.revise([keyframe, too_recent], current, K) == 1
+    assert (keyframe.dynamic & then).sum() / (keyframe.dynamic | then).sum() > 0.8
+    assert too_recent.dynamic is None  # 2 frames back: outside revise_lags
+    before = keyframe.dynamic.clone()
+    assert provider.revise([keyframe], current, K) == 0 and torch.equal(keyframe.dynamic, before)  # only grows
+    assert GeometricMasks(revise_lags=None).revise([keyframe], current, K) == 0
+    assert DatasetMasks().revise([keyframe], current, K) == 0
+    assert RecordingMasks(provider).revise([keyframe], current, K) == 0
