@@ -258,6 +258,9 @@ def clean_mask(
     rel_jump: float = 0.1,
     abs_jump: float = 0.03,
     close_radius: int = 1,
+    motion_score: np.ndarray | None = None,
+    score_threshold: float = 3.0,
+    score_ratio: float = 2.0,
 ) -> np.ndarray:
     """Residual seeds -> a clean object mask (pure function, numpy).
 
@@ -266,6 +269,11 @@ def clean_mask(
        dynamic when its seeds cover >= ``seed_fraction`` of it, or (temporal consistency) when
        >= ``keep_fraction`` of it was dynamic in ``previous``; segments smaller than ``min_area`` px
        or larger than ``max_area_fraction`` of the valid pixels (the static background) never are.
+       With ``motion_score`` (per-pixel |residual| / σ(z) against an earlier frame, NaN where
+       unknown) a segment is also dynamic when its median score reaches ``score_threshold`` and
+       ``score_ratio`` times the largest segment's (the background's, so a pose error that moves
+       everything does not fire): averaging over the segment catches motion far below the per-pixel
+       seed threshold.
     3. Closing fills holes; the result is restricted to valid depth.
 
     Args:
@@ -286,6 +294,13 @@ def clean_mask(
     area = ndimage.sum_labels(np.ones_like(labels), labels, idx)
     seed_px = ndimage.sum_labels(s, labels, idx)
     keep = seed_px >= seed_fraction * area
+    if motion_score is not None:
+        scored = np.where(np.isfinite(motion_score), labels, 0)
+        n_scored = ndimage.sum_labels(np.ones_like(scored), scored, idx)
+        med = np.asarray(ndimage.median(np.nan_to_num(np.abs(motion_score)), scored, idx), dtype=np.float64)
+        med = np.where(n_scored >= min_area, med, 0.0)
+        background = med[int(np.argmax(area))]
+        keep |= (med >= score_threshold) & (med >= score_ratio * background) & (n_scored >= 0.5 * area)
     if previous is not None and previous.shape == labels.shape and previous.any():
         keep |= ndimage.sum_labels(previous, labels, idx) >= keep_fraction * area
     keep &= (area >= min_area) & (area <= max_area_fraction * max(int(valid.sum()), 1))
@@ -386,7 +401,9 @@ def free_space_seeds(
     Args:
         depth, ref_depth: (H, W) metres, 0 = invalid. pose, ref_pose: (4, 4) c2w. K: (3, 3) for (H, W).
     Returns:
-        seeds (H, W) bool, known (H, W) bool (the reference saw the point's pixel).
+        seeds (H, W) bool, known (H, W) bool (the reference saw the point's pixel), and residual
+        (H, W) float: (z_ref(X) - d_ref) / σ(d_ref) at the nearest reference pixel (no 3x3 minimum;
+        NaN where not known), the signed static-world residual in noise units.
     """
     h, w = depth.shape
     v, u = torch.meshgrid(torch.arange(h, device=depth.device), torch.arange(w, device=depth.device), indexing="ij")
@@ -406,7 +423,12 @@ def free_space_seeds(
     known = inb & torch.isfinite(d_ref) & (depth.reshape(-1) > 0)
     thr = torch.clamp(k_sigma * depth_sigma(d_ref.clamp(max=20.0)), min=abs_threshold)
     seeds = known & (z < d_ref - thr)
-    return seeds.view(h, w), known.view(h, w)
+    d_centre = torch.zeros_like(z)
+    d_centre[inb] = ref_depth[vr[inb], ur[inb]]
+    scored = known & (d_centre > 0)
+    residual = torch.full_like(z, float("nan"))
+    residual[scored] = (z[scored] - d_centre[scored]) / depth_sigma(d_centre[scored])
+    return seeds.view(h, w), known.view(h, w), residual.view(h, w)
 
 
 class GeometricMasks(MaskProvider):
@@ -454,6 +476,8 @@ class GeometricMasks(MaskProvider):
         temporal: bool = True,
         predict_margin: int = 2,
         revise_lags: tuple[int, int] | None = (5, 30),
+        score_threshold: float | None = 3.0,
+        score_ratio: float = 2.0,
     ) -> None:
         if source not in ("frames", "map"):
             raise ValueError(f"masks.source must be 'frames' or 'map', got {source!r}")
@@ -477,6 +501,9 @@ class GeometricMasks(MaskProvider):
         )
         self.temporal = temporal
         self.revise_lags = None if revise_lags is None else (int(revise_lags[0]), int(revise_lags[1]))
+        self.use_score = score_threshold is not None
+        if self.use_score:
+            self.clean_kwargs |= dict(score_threshold=float(score_threshold), score_ratio=float(score_ratio))
         self.predict_margin = int(predict_margin)
         self.previous: np.ndarray | None = None  # low-resolution mask of the previous frame
         self._previous_tau: float | None = None
@@ -503,13 +530,15 @@ class GeometricMasks(MaskProvider):
             self.previous = None
             self.history = [] if context is None else [(0, depth.clone(), context.pose.detach().clone())]
             return torch.zeros(h, w, dtype=torch.bool, device=frame.depth.device)
+        score = None
         if self.source == "frames":
-            seeds = self._frame_seeds(depth, context)
+            seeds, score = self._frame_seeds(depth, context)
             rd = known = None
         else:
             seeds, rd, known = self._map_seeds(frame, depth, context)
         dnp = depth.cpu().numpy()
-        low = clean_mask(seeds.cpu().numpy(), dnp, self.previous if self.temporal else None, **self.clean_kwargs)
+        previous = self.previous if self.temporal else None
+        low = clean_mask(seeds.cpu().numpy(), dnp, previous, motion_score=self._score(score), **self.clean_kwargs)
         self.previous = low
         self._previous_tau = float(context.tau)
         self.last_debug = {"seeds": seeds.cpu().numpy()}
@@ -548,9 +577,9 @@ class GeometricMasks(MaskProvider):
             if not lo <= current.frame_id - kf.frame_id <= hi:
                 continue
             depth = kf.depth[::s, ::s]
-            seeds, _ = free_space_seeds(depth, kf.pose, ref_depth, current.pose, Kl, self.abs_threshold, self.k_sigma)
+            seeds, _, residual = free_space_seeds(depth, kf.pose, ref_depth, current.pose, Kl, self.abs_threshold, self.k_sigma)
             old = None if kf.dynamic is None else kf.dynamic[::s, ::s].cpu().numpy()
-            low = clean_mask(seeds.cpu().numpy(), depth.cpu().numpy(), old, **self.clean_kwargs)
+            low = clean_mask(seeds.cpu().numpy(), depth.cpu().numpy(), old, motion_score=self._score(residual), **self.clean_kwargs)
             full = upsample_mask(torch.from_numpy(low), s, kf.depth) & (kf.depth > 0)
             new = full if kf.dynamic is None else full | kf.dynamic
             if kf.dynamic is None or bool((new & ~kf.dynamic).any()):
@@ -558,13 +587,20 @@ class GeometricMasks(MaskProvider):
                 grown += 1
         return grown
 
+    def _score(self, residual: torch.Tensor | None) -> np.ndarray | None:
+        """The segment-level motion score for :func:`clean_mask` (None when that test is off)."""
+        return None if residual is None or not self.use_score else residual.cpu().numpy()
+
     def _low_K(self, K: torch.Tensor) -> torch.Tensor:
         Kl = K.clone()
         Kl[:2] /= self.stride  # pixel (i*s) of the frame is pixel i here
         return Kl
 
-    def _frame_seeds(self, depth: torch.Tensor, context: MaskContext) -> torch.Tensor:
+    def _frame_seeds(self, depth: torch.Tensor, context: MaskContext) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Free-space seeds against every lag's reference frame, and the normalised residual against
+        the first one (the segment motion score)."""
         k = int(context.frame_number)
+        score = None
         pose = context.pose.detach().clone()
         Kl = self._low_K(context.K)
         seeds = torch.zeros_like(depth, dtype=torch.bool)
@@ -575,12 +611,13 @@ class GeometricMasks(MaskProvider):
             if ref[0] in used:
                 continue
             used.add(ref[0])
-            s, _ = free_space_seeds(depth, pose, ref[1], ref[2], Kl, self.abs_threshold, self.k_sigma)
+            s, _, residual = free_space_seeds(depth, pose, ref[1], ref[2], Kl, self.abs_threshold, self.k_sigma)
             seeds |= s
+            score = residual if score is None else score
         self.history.append((k, depth.clone(), pose))
         horizon = max(self.lags) + 1
         self.history = [e for e in self.history if k - e[0] <= horizon]
-        return seeds
+        return seeds, score
 
     def _map_seeds(self, frame: Frame, depth: torch.Tensor, context: MaskContext):
         s = self.stride

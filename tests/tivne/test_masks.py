@@ -232,6 +232,25 @@ def test_clean_mask_grows_seeds_drops_speckle_and_keeps_temporal():
     assert not clean_mask(np.ones_like(seeds), scene_depth(None).numpy()).any()
 
 
+
+def test_clean_mask_segment_score_catches_slow_motion_but_not_a_pose_error():
+    moving, still = square(8, 8, 12), square(30, 40, 10)  # two objects in front of the background
+    depth = scene_depth(moving | still).numpy()
+    rng = np.random.default_rng(0)
+    noise = np.abs(rng.normal(size=(H, W)))  # |residual| / σ of a static scene: median ~0.67
+    none = np.zeros((H, W), bool)
+    slow = np.where(moving.numpy(), 4.0 + noise, noise)  # 4σ on the object: no single pixel seeds
+    out = clean_mask(none, depth, motion_score=slow, min_area=4)
+    assert (out == moving.numpy()).mean() > 0.99 and not out[still.numpy()].any()
+    assert not clean_mask(none, depth, motion_score=slow, min_area=4, score_threshold=6.0).any()
+    # A pose error moves everything, the still object too: the background's own score raises the bar.
+    pose_error = noise + 3.5
+    assert not clean_mask(none, depth, motion_score=pose_error, min_area=4).any()
+    # Unknown residuals (NaN) do not count; a segment mostly unknown is not judged.
+    unknown = np.where(moving.numpy(), np.nan, slow)
+    assert not clean_mask(none, depth, motion_score=unknown, min_area=4).any()
+
+
 # ---- geometric provider on a known synthetic map ---------------------------------------------------
 
 
@@ -301,7 +320,7 @@ def test_free_space_seeds_against_an_earlier_frame_with_camera_motion():
     K = Intrinsics(50.0, 50.0, W / 2, H / 2, W, H).K()
     before_d, before = box_depth(K, -0.5, -0.1, -0.3, 0.1, 1.5)
     now_d, now = box_depth(K, -0.3, 0.1, -0.3, 0.1, 1.5)
-    seeds, known = free_space_seeds(now_d, torch.eye(4), before_d, torch.eye(4), K)
+    seeds, known, _ = free_space_seeds(now_d, torch.eye(4), before_d, torch.eye(4), K)
     # the object's new pixels (less one pixel next to the old place, from the 3x3 min); not the
     # disoccluded wall
     grown = torch.nn.functional.max_pool2d(before[None, None].float(), 3, 1, 1)[0, 0] > 0
@@ -310,7 +329,7 @@ def test_free_space_seeds_against_an_earlier_frame_with_camera_motion():
     pose = torch.eye(4)
     pose[0, 3] = 0.05
     ref_d, _ = box_depth(K, -0.55, -0.15, -0.3, 0.1, 1.5)  # the same scene from the moved camera
-    seeds, known = free_space_seeds(before_d, torch.eye(4), ref_d, pose, K)
+    seeds, known, _ = free_space_seeds(before_d, torch.eye(4), ref_d, pose, K)
     assert known.float().mean() > 0.8 and seeds.sum() <= 2
 
 
