@@ -74,3 +74,13 @@ def test_bad_dataset_value_is_one_error_line(tmp_path):
     errors = [line for line in out.stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "num_frames" in errors[0]
     assert "Traceback" not in out.stderr
+
+
+def test_fast_preset_maps_every_other_frame(tmp_path):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose("config", overrides=["experiment=fast"])
+    assert cfg.tracking.iters == 20 and cfg.mapping.every == 2 and cfg.mapping.iters == 20
+    smoke = compose_cfg("mapping.every=2", "data.max_frames=5", "masks=geometric")
+    metrics = run(smoke, tmp_path)
+    assert metrics["frames"] == 5 and metrics["map_ms_per_iter"] > 0
+    assert len(read_tum_trajectory(tmp_path / "trajectory.txt")[0]) == 5
