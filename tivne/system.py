@@ -309,8 +309,8 @@ class TivNeSLAM(L.LightningModule):
         order: list[int] = []
         done, terms = 0, {}
         while done < cfg.final_iters:
-            while len(order) < window:
-                order += [i for i in torch.randperm(len(views), generator=self.generator).tolist() if i not in order[:window]]
+            if len(order) < window:  # next cycle; the last cycle's leftovers go first, no repeats in a window
+                order += [i for i in torch.randperm(len(views), generator=self.generator).tolist() if i not in order]
             picked, order = order[:window], order[window:]
             iters = min(cfg.iters, cfg.final_iters - done)
             _, terms = self.mapper.run(
