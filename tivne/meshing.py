@@ -11,9 +11,9 @@ without seams.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 import os
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np

@@ -206,15 +206,20 @@ class SparseVoxelGrid(nn.Module):
         self.voxel_corner_rows = all_vrows[order]
         self.voxel_hits = all_hits[order]
 
+    def point_keys(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(..., 3) world points -> voxel keys (...) and in_range (...) bool; points outside the
+        hashable range (or non-finite) get key 0 and in_range False -- they are simply not in the map."""
+        base = torch.floor(points / self.voxel_size)
+        in_range = torch.isfinite(base).all(-1) & (base.abs() < _OFFSET - 1).all(-1)
+        return pack_coords(torch.where(in_range[..., None], base, torch.zeros_like(base)).long()), in_range
+
     def contains(self, points: torch.Tensor, min_hits: int = 0) -> torch.Tensor:
         """(..., 3) world points -> (...) bool, True inside an allocated voxel (False for NaN/inf/huge).
 
-        ``min_hits`` > 0 keeps only voxels that held depth points in at least that many allocation
-        calls (observed space, not the dilation shell around it).
+        ``min_hits`` > 0 keeps only voxels that held static depth points in at least that many
+        allocation calls (observed space, not the dilation shell around it).
         """
-        base = torch.floor(points / self.voxel_size)
-        in_range = torch.isfinite(base).all(-1) & (base.abs() < _OFFSET - 1).all(-1)
-        keys = pack_coords(torch.where(in_range[..., None], base, torch.zeros_like(base)).long())
+        keys, in_range = self.point_keys(points)
         pos, found = sorted_lookup(self.voxel_keys, keys)
         found &= in_range
         if min_hits > 0 and self.num_voxels > 0:
@@ -230,9 +235,7 @@ class SparseVoxelGrid(nn.Module):
         recent = torch.unique(self.dynamic_keys[(self.dynamic_tau - float(tau)).abs() <= window])
         if recent.numel() == 0:
             return out
-        base = torch.floor(points / self.voxel_size)
-        in_range = torch.isfinite(base).all(-1) & (base.abs() < _OFFSET - 1).all(-1)
-        keys = pack_coords(torch.where(in_range[..., None], base, torch.zeros_like(base)).long())
+        keys, in_range = self.point_keys(points)
         return out | (sorted_lookup(recent, keys)[1] & in_range)
 
     def lookup(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
