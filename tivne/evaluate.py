@@ -329,7 +329,11 @@ def flatten_mesh_metrics(per_time: dict[float, dict[str, Any]], first: float, la
 
 
 def load_or_extract_meshes(
-    run_dir: Path, times: Sequence[float], resolution: float, prefer_files: bool = True, culling: MeshCulling | None = MeshCulling()
+    run_dir: Path,
+    times: Sequence[float],
+    resolution: float,
+    prefer_files: bool = True,
+    culling: MeshCulling | None = MeshCulling(),
 ) -> tuple[dict[float, trimesh.Trimesh], str | None]:
     """Meshes of the run at ``times`` (SLAM frame).
 

@@ -101,7 +101,8 @@ def main(cfg: DictConfig) -> None:
         times = cfg.times
         if times is not None and not OmegaConf.is_list(times):
             times = [times]  # times=1.5
-        written = mesh_run(cfg.run_dir, times, cfg.every, float(cfg.resolution), cfg.device, MeshCulling(int(cfg.min_hits), cfg.dynamic_window))
+        culling = MeshCulling(int(cfg.min_hits), cfg.dynamic_window)
+        written = mesh_run(cfg.run_dir, times, cfg.every, float(cfg.resolution), cfg.device, culling)
     except (FileNotFoundError, ValueError, MissingMandatoryValue) as exc:
         print(f"error: {exc}".splitlines()[0], file=sys.stderr)
         sys.exit(2)

@@ -377,14 +377,13 @@ class TivNeSLAM(L.LightningModule):
         except ImportError as exc:  # meshing is optional at import time only while developing
             return {"mesh_reason": f"meshing unavailable: {exc}"}
         times = list(self.output_cfg.mesh_times) or [self.records[0].timestamp, self.records[-1].timestamp]
+        culling = MeshCulling(self.output_cfg.mesh_min_hits, self.output_cfg.mesh_dynamic_window)
         out = self.run_dir / "meshes"
         out.mkdir(parents=True, exist_ok=True)
         result: dict[str, Any] = {}
         for ts in times:
             tau = time_to_tau(ts, self.t0, self.field.time_scale)
-            mesh = extract_mesh(
-                self.field, tau, resolution=self.output_cfg.mesh_resolution, culling=MeshCulling(self.output_cfg.mesh_min_hits, self.output_cfg.mesh_dynamic_window),
-            )
+            mesh = extract_mesh(self.field, tau, resolution=self.output_cfg.mesh_resolution, culling=culling)
             save_mesh(mesh, out / f"mesh_t{ts:.3f}.ply")
             result[f"mesh_t{ts:.3f}_faces"] = int(len(mesh.faces))
         return result
