@@ -6,8 +6,8 @@ tracked pose and the map (``needs_tracked_pose``) are called after tracking inst
 
 Providers (config group ``masks``): ``dataset`` (masks shipped with the data), ``folder`` (one PNG per
 frame, nonzero = dynamic), ``none``, ``maskrcnn`` (:mod:`tivne.maskrcnn`, needs torchvision and a
-local weights file) and ``geometric`` (model-free: the observed frame against the map rendered at the
-tracked pose).
+local weights file) and ``geometric`` (model-free: the frame against earlier frames, or the map, at the
+tracked pose; earlier keyframes' masks are revised as later frames arrive, see ``MaskProvider.revise``).
 """
 
 from __future__ import annotations
@@ -448,7 +448,10 @@ class GeometricMasks(MaskProvider):
     uncovered). :func:`clean_mask` turns seeds into whole objects (opening, depth-continuous
     segments, area limits, the previous frame's mask for temporal consistency, closing); the mask is
     upsampled (nearest) to the frame size. ``predict`` gives tracking the previous mask, grown.
-    The first frame gets an all-static mask.
+    The first frame gets an all-static mask. With ``source='frames'`` a segment is also dynamic when
+    its median |static-world residual| / σ(z) reaches ``score_threshold`` (and ``score_ratio`` times
+    the background's), which catches slow motion within a few frames, and ``revise`` re-tests
+    keyframes ``revise_lags`` frames back against each new frame.
     """
 
     name = "geometric"
