@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from tivne.field.networks import TimeVaryingField
@@ -66,6 +67,14 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
     field.to(device).eval()
     meta = {k: v for k, v in payload.items() if k != "field_state"}
     return field, meta
+
+
+def camera_centres(meta: dict[str, Any]) -> np.ndarray:
+    """(N, 3) camera positions of a checkpoint's trajectory (SLAM frame), from ``meta["poses"]``."""
+    poses = meta.get("poses")
+    if poses is None:
+        return np.zeros((0, 3))
+    return np.asarray(torch.as_tensor(poses, dtype=torch.float64)[:, :3, 3])
 
 
 def time_to_tau(timestamp: float, t0: float, time_scale: float) -> float:

@@ -47,7 +47,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue
 
 from data_modules.frame import DatasetError
-from tivne.checkpoint import CHECKPOINT_NAME, load_checkpoint, time_to_tau
+from tivne.checkpoint import CHECKPOINT_NAME, camera_centres, load_checkpoint, time_to_tau
 from tivne.geometry import backproject, pixel_grid, read_tum_trajectory
 from tivne.mesh import mesh_path
 from tivne.meshing import MeshCulling, extract_mesh
@@ -359,7 +359,8 @@ def load_or_extract_meshes(
         return meshes, f"no mesh file and no checkpoint ({ckpt.name}) for t={missing}"
     field, meta = load_checkpoint(ckpt, device="cuda" if torch.cuda.is_available() else "cpu")
     for t in missing:
-        meshes[t] = extract_mesh(field, time_to_tau(t, meta["t0"], field.time_scale), resolution, culling=culling)
+        tau = time_to_tau(t, meta["t0"], field.time_scale)
+        meshes[t] = extract_mesh(field, tau, resolution, culling=culling, camera_centres=camera_centres(meta))
     return meshes, None
 
 
@@ -551,7 +552,7 @@ def main(cfg: DictConfig) -> None:
             frame=cfg.frame,
             settings=settings,
             prefer_mesh_files=bool(cfg.prefer_mesh_files),
-            mesh_culling=MeshCulling(int(cfg.mesh_min_hits), cfg.mesh_dynamic_window),
+            mesh_culling=MeshCulling(int(cfg.mesh_min_hits), cfg.mesh_dynamic_window, bool(cfg.mesh_backfaces)),
         )
         merge_metrics_json(run_dir / "metrics.json", metrics)
     except (FileNotFoundError, ValueError, TypeError, MissingMandatoryValue) as exc:

@@ -20,7 +20,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue
 
-from tivne.checkpoint import CHECKPOINT_NAME, load_checkpoint, time_to_tau
+from tivne.checkpoint import CHECKPOINT_NAME, camera_centres, load_checkpoint, time_to_tau
 from tivne.meshing import MeshCulling, extract_mesh, save_mesh
 
 TIME_TOLERANCE_S = 1e-3
@@ -89,7 +89,8 @@ def mesh_run(
     field, meta = load_checkpoint(run_dir / "checkpoints" / CHECKPOINT_NAME, device=device)
     written = []
     for ts in select_mesh_times(meta["timestamps"], times, every):
-        mesh = extract_mesh(field, time_to_tau(ts, meta["t0"], field.time_scale), resolution, culling=culling)
+        tau = time_to_tau(ts, meta["t0"], field.time_scale)
+        mesh = extract_mesh(field, tau, resolution, culling=culling, camera_centres=camera_centres(meta))
         path = save_mesh(mesh, mesh_path(run_dir, ts))
         written.append((ts, len(mesh.vertices), len(mesh.faces), path))
     return written
@@ -101,7 +102,7 @@ def main(cfg: DictConfig) -> None:
         times = cfg.times
         if times is not None and not OmegaConf.is_list(times):
             times = [times]  # times=1.5
-        culling = MeshCulling(int(cfg.min_hits), cfg.dynamic_window)
+        culling = MeshCulling(int(cfg.min_hits), cfg.dynamic_window, bool(cfg.backfaces))
         written = mesh_run(cfg.run_dir, times, cfg.every, float(cfg.resolution), cfg.device, culling)
     except (FileNotFoundError, ValueError, MissingMandatoryValue) as exc:
         print(f"error: {exc}".splitlines()[0], file=sys.stderr)

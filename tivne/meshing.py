@@ -67,10 +67,40 @@ class MeshCulling:
     dynamic_window: also voxels where a moving object was seen within this τ distance of the mesh's
         τ, so the object shows where it was seen around then and not along its trail; None: voxels
         that only ever held moving objects are never meshed.
+    backfaces: drop faces that no camera of the trajectory saw from their free side (given camera
+        centres): behind an observed surface the SDF is only supervised for a band, and where it
+        turns positive again marching cubes finds a second, inward-facing surface.
     """
 
     min_hits: int = 1
     dynamic_window: float | None = 0.2
+    backfaces: bool = True
+
+
+def cull_backfaces(mesh: trimesh.Trimesh, camera_centres: np.ndarray, chunk: int = 4096) -> trimesh.Trimesh:
+    """Keep the faces whose normal (towards free space) points towards at least one camera.
+
+    Args:
+        mesh: faces oriented towards positive SDF (as :func:`extract_mesh` makes them).
+        camera_centres: (N, 3) camera positions in the mesh's frame.
+    Returns:
+        the mesh without the faces every camera sees from behind (unreferenced vertices removed).
+    """
+    if len(mesh.faces) == 0 or len(camera_centres) == 0:
+        return mesh
+    centres = np.asarray(camera_centres, dtype=np.float64)
+    normals, points = np.asarray(mesh.face_normals), np.asarray(mesh.triangles_center)
+    seen = np.zeros(len(points), dtype=bool)
+    for start in range(0, len(points), chunk):
+        p, n = points[start : start + chunk], normals[start : start + chunk]
+        # n . (c - p) > 0 for some camera c: the face's free side faces that camera.
+        seen[start : start + chunk] = ((centres[None] - p[:, None]) * n[:, None]).sum(-1).max(1) > 0
+    if seen.all():
+        return mesh
+    out = mesh.copy()
+    out.update_faces(seen)
+    out.remove_unreferenced_vertices()
+    return out if len(out.faces) else empty_mesh()
 
 
 def near_observed(
@@ -167,6 +197,7 @@ def extract_mesh(
     device: str | torch.device | None = None,
     slab_points: int = DEFAULT_SLAB_POINTS,
     culling: MeshCulling | None = None,
+    camera_centres: np.ndarray | None = None,
 ) -> trimesh.Trimesh:
     """Zero level set of the field at τ as one welded, vertex-coloured mesh in world metres.
 
@@ -178,6 +209,7 @@ def extract_mesh(
         device: where to evaluate; default the field's device (a field elsewhere is copied there).
         slab_points: lattice points per slab (bounds the temporaries).
         culling: keep the mesh to observed space (:class:`MeshCulling`); None: every allocated voxel.
+        camera_centres: (N, 3) camera positions of the run (for ``culling.backfaces``).
     Returns:
         ``trimesh.Trimesh`` with faces oriented towards free space (positive SDF) and RGBA uint8
         vertex colours from the field's rgb at τ; an empty mesh when no voxel is allocated or the
@@ -246,6 +278,8 @@ def extract_mesh(
     if (area <= 0).any():  # an SDF value exactly 0 at a lattice point gives zero-area triangles
         mesh.update_faces(area > 0)
         mesh.remove_unreferenced_vertices()
+    if culling is not None and culling.backfaces and camera_centres is not None:
+        mesh = cull_backfaces(mesh, camera_centres)
     return mesh if len(mesh.faces) else empty_mesh()
 
 

@@ -30,7 +30,7 @@ from tivne.tracking import TrackingConfig, frozen, predict_pose, track_frame
 @dataclass(frozen=True)
 class OutputConfig:
     """mesh_times: seconds on the sequence clock, or empty for the first and last frame.
-    mesh_resolution: marching-cubes lattice step (m). mesh_min_hits, mesh_dynamic_window: see
+    mesh_resolution: marching-cubes lattice step (m). mesh_min_hits, mesh_dynamic_window, mesh_backfaces: see
     :class:`tivne.meshing.MeshCulling` (observed space only). image_every: log rendered images every n
     frames (0 = never). save_every: rewrite trajectory.txt every n frames so an interrupted run
     keeps its results. allocation_stride: back-project every n-th pixel when allocating voxels."""
@@ -39,6 +39,7 @@ class OutputConfig:
     mesh_resolution: float = 0.02
     mesh_min_hits: int = 1
     mesh_dynamic_window: float | None = 0.2
+    mesh_backfaces: bool = True
     image_every: int = 50
     save_every: int = 25
     allocation_stride: int = 4
@@ -377,13 +378,16 @@ class TivNeSLAM(L.LightningModule):
         except ImportError as exc:  # meshing is optional at import time only while developing
             return {"mesh_reason": f"meshing unavailable: {exc}"}
         times = list(self.output_cfg.mesh_times) or [self.records[0].timestamp, self.records[-1].timestamp]
-        culling = MeshCulling(self.output_cfg.mesh_min_hits, self.output_cfg.mesh_dynamic_window)
+        culling = MeshCulling(self.output_cfg.mesh_min_hits, self.output_cfg.mesh_dynamic_window, self.output_cfg.mesh_backfaces)
+        centres = self.trajectory()[:, :3, 3].cpu().numpy()
         out = self.run_dir / "meshes"
         out.mkdir(parents=True, exist_ok=True)
         result: dict[str, Any] = {}
         for ts in times:
             tau = time_to_tau(ts, self.t0, self.field.time_scale)
-            mesh = extract_mesh(self.field, tau, resolution=self.output_cfg.mesh_resolution, culling=culling)
+            mesh = extract_mesh(
+                self.field, tau, resolution=self.output_cfg.mesh_resolution, culling=culling, camera_centres=centres
+            )
             save_mesh(mesh, out / f"mesh_t{ts:.3f}.ply")
             result[f"mesh_t{ts:.3f}_faces"] = int(len(mesh.faces))
         return result

@@ -98,12 +98,12 @@ def test_stale_cube_is_a_ghost(tmp_path, view, gt_meshes):
 
 
 def test_mesh_from_checkpoint_and_reasons(tmp_path, view):
-    from test_meshing import embedded_sphere, field_kwargs  # same folder (pytest prepends it to sys.path)
+    from test_meshing import embedded_sphere, field_kwargs, outside_cameras  # same folder (pytest prepends it to sys.path)
     from tivne.checkpoint import save_checkpoint
 
     make_run(tmp_path, view, {})
     save_checkpoint(tmp_path / "checkpoints" / "slam.pt", embedded_sphere(True), field_kwargs(True),
-                    list(view.timestamps), torch.eye(4).repeat(4, 1, 1), t0=0.0)
+                    list(view.timestamps), outside_cameras(4), t0=0.0)
     m = evaluate_run(tmp_path, dataset_view=view, mesh_resolution=0.05, settings=FAST)
     # A 0.3 m sphere around the first camera: nothing near the cube, all of it ghost.
     assert m["cube_accuracy_first_m"] is None and "box" in m["mesh_t0.00_cube_reason"]

@@ -15,7 +15,7 @@ from tivne.checkpoint import save_checkpoint
 from tivne.field.networks import FieldOutputs, TimeVaryingField
 from tivne.field.voxels import unpack_keys
 from tivne.mesh import mesh_run, select_mesh_times
-from tivne.meshing import MeshCulling, extract_mesh, save_mesh
+from tivne.meshing import MeshCulling, cull_backfaces, extract_mesh, save_mesh
 
 RADIUS = 0.3
 TRUNCATION = 0.05
@@ -166,10 +166,18 @@ def test_select_mesh_times():
         select_mesh_times(stamps, every=0)
 
 
+def outside_cameras(n: int) -> torch.Tensor:
+    """(n, 4, 4) camera poses 1.5 m in front of the sphere (a camera inside it would see every face
+    from behind, and back-face culling would rightly drop them all)."""
+    poses = torch.eye(4).repeat(n, 1, 1)
+    poses[:, 2, 3] = -1.5
+    return poses
+
+
 def saved_run(tmp_path: Path) -> Path:
     field = embedded_sphere(time=True)
     stamps = [10.0, 10.1, 10.2]
-    save_checkpoint(tmp_path / "checkpoints" / "slam.pt", field, field_kwargs(True), stamps, torch.eye(4).repeat(3, 1, 1), t0=10.0)
+    save_checkpoint(tmp_path / "checkpoints" / "slam.pt", field, field_kwargs(True), stamps, outside_cameras(3), t0=10.0)
     return tmp_path
 
 
@@ -266,3 +274,43 @@ def test_dynamic_window_shows_a_moving_object_only_where_it_was_seen_then():
     assert min(sides(unculled)) > 100  # the trail is in the field itself
     never = extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1, dynamic_window=None))
     assert len(never.faces) == 0
+
+
+class RoomWithBackSurface(AnalyticSphere):
+    """Free space inside a spherical 'room' wall at r = 0.5 (seen from the centre); behind the wall the
+    SDF turns positive again at r = 0.6, as an unsupervised field does past the sampled band."""
+
+    def forward(self, points: torch.Tensor, tau: torch.Tensor) -> FieldOutputs:
+        out = super().forward(points, tau)
+        r = points.norm(dim=-1)
+        d = torch.where(r < 0.55, 0.5 - r, r - 0.6) / TRUNCATION
+        out.sdf = torch.where(out.valid, d, out.sdf)
+        return out
+
+
+def test_backface_culling_drops_the_surface_behind_the_wall():
+    field = RoomWithBackSurface(time=False, voxel_size=0.1, capacity=256)
+    for radius in (0.5, 0.6):
+        field.grid.allocate(sphere_surface(8000, radius), dilation=1)
+    centres = np.array([[0.0, 0.0, 0.0], [0.1, -0.05, 0.0]])  # cameras inside the room
+    both = extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1, backfaces=False), camera_centres=centres)
+    culled = extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1), camera_centres=centres)
+    r_both = np.linalg.norm(both.vertices, axis=1)
+    r_culled = np.linalg.norm(culled.vertices, axis=1)
+    assert (np.abs(r_both - 0.6) < 0.01).sum() > 100 and (np.abs(r_both - 0.5) < 0.01).sum() > 100
+    assert (np.abs(r_culled - 0.6) < 0.02).sum() == 0  # the back surface is gone ...
+    assert abs(culled.area - 4 * np.pi * 0.5**2) / (4 * np.pi * 0.5**2) < 0.05  # ... the wall is whole
+    # without camera centres nothing is culled
+    assert len(extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1)).faces) == len(both.faces)
+
+
+def test_cull_backfaces_keeps_faces_any_camera_sees_from_their_free_side():
+    quad = trimesh.Trimesh(
+        vertices=[[0, 0, 1], [1, 0, 1], [0, 1, 1], [0, 0, 2], [0, 1, 2], [1, 0, 2]],
+        faces=[[0, 2, 1], [3, 5, 4]],  # normal -z (towards a camera at z < 1), normal +z
+        process=False,
+    )
+    assert np.allclose(quad.face_normals, [[0, 0, -1], [0, 0, 1]])
+    assert len(cull_backfaces(quad, np.array([[0.2, 0.2, 0.0]])).faces) == 1
+    assert len(cull_backfaces(quad, np.array([[0.2, 0.2, 0.0], [0.2, 0.2, 3.0]])).faces) == 2
+    assert len(cull_backfaces(quad, np.zeros((0, 3))).faces) == 2
