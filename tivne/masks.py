@@ -368,7 +368,6 @@ def march_map_depth(
     return torch.cat(out_d), torch.cat(out_k), torch.cat(out_c)
 
 
-@torch.no_grad()
 def upsample_mask(low: torch.Tensor, stride: int, like: torch.Tensor) -> torch.Tensor:
     """(h, w) bool mask of every ``stride``-th pixel -> (H, W) bool like ``like`` (nearest; the
     border beyond a multiple of the stride stays False)."""
@@ -381,6 +380,7 @@ def upsample_mask(low: torch.Tensor, stride: int, like: torch.Tensor) -> torch.T
     return full
 
 
+@torch.no_grad()
 def free_space_seeds(
     depth: torch.Tensor,
     pose: torch.Tensor,
@@ -569,7 +569,7 @@ class GeometricMasks(MaskProvider):
         re-tested against the current frame and their masks grow by the cleaned result (never
         shrink), so the object is masked in them -- and in mapping -- even where it was still too
         slow to be caught when they were taken (``source='frames'`` only)."""
-        if self.source != "frames" or self.revise_lags is None or current.dynamic is None:
+        if self.source != "frames" or self.revise_lags is None:
             return 0
         s = self.stride
         lo, hi = self.revise_lags
