@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +26,42 @@ import numpy as np
 import torch
 
 from data_modules.frame import DatasetError, Intrinsics
+
+# --------------------------------------------------------------------------------------- writes
+
+
+def atomic_write(path: str | Path, data: bytes | str | Callable[[Path], None]) -> Path:
+    """Write ``path`` all at once: a temporary file in the same folder, then a rename.
+
+    A reader sees the old content or the new, never half a file, and a failed write (full disk,
+    an exception while serialising) leaves the old file untouched and no temporary file behind.
+
+    Args:
+        data: the bytes or text to write, or a callable that writes the file at the path it is given
+            (for writers that want a file name, such as ``torch.save`` or ``trimesh.export``).
+    Returns:
+        ``path`` as a Path.
+    Raises:
+        OSError: the folder cannot be created or written (the message names the path).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    tmp = Path(name)
+    try:
+        if callable(data):
+            os.close(fd)
+            data(tmp)
+        else:
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data.encode() if isinstance(data, str) else data)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
 
 # --------------------------------------------------------------------------------------- paths
 
