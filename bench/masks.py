@@ -6,7 +6,7 @@
 e.g. ``--set geometric:masks.provider.stride=2`` (every 2nd pixel at 160x120 ~ every 8th at 640x480).
 
 Each provider runs inside the real SLAM loop (``tivne.train.run``) wrapped in
-:class:`tivne.masks.RecordingMasks`, which records the mask it returned for every frame; masks are
+:class:`tivne.masks.base.RecordingMasks`, which records the mask it returned for every frame; masks are
 then compared with the GT masks: per-frame IoU, precision and recall, averaged over all frames and
 over frames with t >= 1 s (the second second on). ``--no-slam`` evaluates providers that need no
 tracked pose on the frames alone (no ATE). Prints one table; ``--json`` writes the numbers.
@@ -28,7 +28,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tivne.masks import RecordingMasks  # noqa: E402
+from tivne.masks.base import RecordingMasks  # noqa: E402
 
 
 def frame_scores(pred: torch.Tensor | None, gt: torch.Tensor) -> tuple[float, float, float]:
@@ -96,7 +96,7 @@ def run_slam(name: str, args: argparse.Namespace) -> dict[str, float]:
     cfg = compose(name, args)
     with open_dict(cfg):
         inner = OmegaConf.to_container(cfg.masks.provider)
-        cfg.masks.provider = {"_target_": "tivne.masks.RecordingMasks", "inner": inner}
+        cfg.masks.provider = {"_target_": "tivne.masks.base.RecordingMasks", "inner": inner}
     RecordingMasks.instances.clear()
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as run_dir:

@@ -11,3 +11,11 @@ def tiny_cube():
     from data_modules.moving_cube import MovingCubeSequence
 
     return MovingCubeSequence(num_frames=6, width=80, height=60, depth_noise=False, rgb_noise=0.0, cache_dir=None)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def tivne_config_defaults():
+    """conf/*.yaml compose onto the defaults of tivne.config (the CLIs register them on import)."""
+    from tivne.cli import register_defaults
+
+    register_defaults()

@@ -8,17 +8,17 @@ whose PNG already exists and is valid are skipped, so an interrupted run resumes
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import MissingMandatoryValue
 
 from data_modules.frame import DatasetError
 from data_modules.sequence import SequenceView
-from tivne.masks import MaskProvider, mask_file_name, read_mask_png, write_mask_png
+from tivne.cli import one_line_errors
+from tivne.masks.base import MaskProvider
+from tivne.masks.folder import mask_file_name, read_mask_png, write_mask_png
 
 
 def make_masks(provider: MaskProvider, view, out: str | Path, overwrite: bool = False, progress: bool = True) -> dict[str, int]:
@@ -64,18 +64,9 @@ def run(cfg: DictConfig) -> dict[str, int]:
 
 
 @hydra.main(config_path="../conf", config_name="make_masks", version_base="1.3")
+@one_line_errors
 def main(cfg: DictConfig) -> None:
-    try:
-        counts = run(cfg)
-    except (DatasetError, MissingMandatoryValue) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        sys.exit(2)
-    except Exception as exc:  # errors wrapped by Hydra's instantiate
-        cause = exc.__cause__ or exc.__context__
-        if isinstance(cause, (DatasetError, MissingMandatoryValue)):
-            print(f"error: {cause}", file=sys.stderr)
-            sys.exit(2)
-        raise
+    counts = run(cfg)
     print(f"{counts['written']} written, {counts['skipped']} skipped, {counts['empty']} without a mask -> {cfg.out}")
 
 

@@ -11,9 +11,6 @@ without seams.
 from __future__ import annotations
 
 import copy
-import os
-import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +18,8 @@ import torch
 import trimesh
 from skimage import measure
 
+from data_modules.io import atomic_write
+from tivne.config import MeshConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.field.voxels import CORNER_OFFSETS
 
@@ -55,26 +54,6 @@ def query_field(
     if not sdf:
         return points.new_zeros(0), points.new_zeros(0, 3)
     return torch.cat(sdf), torch.cat(rgb)
-
-
-@dataclass(frozen=True)
-class MeshCulling:
-    """Which allocated space a mesh may show (only observed space by default).
-
-    min_hits: lattice points must lie within one lattice step of a voxel that held static depth
-        points in at least this many frames; the rest of the allocation (the dilation shell, never
-        supervised) is where marching cubes finds spurious surfaces. 0 = every allocated voxel.
-    dynamic_window: also voxels where a moving object was seen within this τ distance of the mesh's
-        τ, so the object shows where it was seen around then and not along its trail; None: voxels
-        that only ever held moving objects are never meshed.
-    backfaces: drop faces that no camera of the trajectory saw from their free side (given camera
-        centres): behind an observed surface the SDF is only supervised for a band, and where it
-        turns positive again marching cubes finds a second, inward-facing surface.
-    """
-
-    min_hits: int = 1
-    dynamic_window: float | None = 0.2
-    backfaces: bool = True
 
 
 def cull_backfaces(mesh: trimesh.Trimesh, camera_centres: np.ndarray, chunk: int = 4096) -> trimesh.Trimesh:
@@ -188,6 +167,59 @@ def empty_mesh() -> trimesh.Trimesh:
     return trimesh.Trimesh(vertices=np.zeros((0, 3)), faces=np.zeros((0, 3), dtype=np.int64), process=False)
 
 
+def slab_surface(
+    field: TimeVaryingField, pts: torch.Tensor, shape: tuple[int, int, int], tau: float, resolution: float,
+    culling: MeshConfig | None, chunk: int,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Marching cubes on one slab of lattice points, in lattice units of the slab.
+
+    Args:
+        pts: (X*Y*Z, 3) lattice points of the slab (x major); shape: (X, Y, Z).
+    Returns:
+        vertices (V, 3) and faces (F, 3), or None when the slab holds no surface.
+    """
+    grid = field.grid
+    inside = grid.contains(pts)
+    if culling is not None and (culling.min_hits > 0 or culling.dynamic_window is not None):
+        window = culling.dynamic_window
+        inside &= near_observed(grid, pts, culling.min_hits, resolution, None if window is None else tau, window or 0.0)
+    inside_np = inside.cpu().numpy().reshape(shape)
+    mask = cell_mask(inside_np)
+    if not mask.any():
+        return None
+    volume = np.ones(shape, dtype=np.float32)  # positive (free) where not evaluated
+    sdf, _ = query_field(field, pts[inside], tau, chunk)
+    volume[inside_np] = sdf.float().cpu().numpy()
+    vals = volume[inside_np]
+    if not vals.min() < 0 < vals.max():
+        return None
+    try:
+        # 'descent' orients faces towards positive SDF (free space): a closed object gets a
+        # positive trimesh volume (tested).
+        v, f, _, _ = measure.marching_cubes(volume, level=0.0, mask=mask, gradient_direction="descent")
+    except (RuntimeError, ValueError):  # no crossing inside the masked cells
+        return None
+    return (v.astype(np.float64), f.astype(np.int64)) if len(f) else None
+
+
+def coloured_mesh(field: TimeVaryingField, verts: np.ndarray, faces: np.ndarray, tau: float, chunk: int) -> trimesh.Trimesh:
+    """A mesh with RGBA uint8 vertex colours from the field at τ; zero-area faces dropped.
+
+    Args:
+        verts: (V, 3) world metres; faces: (F, 3).
+    """
+    pts = torch.from_numpy(verts).to(device=field_device(field), dtype=torch.float32)
+    _, rgb = query_field(field, pts, tau, chunk)
+    rgb8 = (rgb.clamp(0, 1).cpu().numpy() * 255.0).round().astype(np.uint8)
+    colors = np.concatenate([rgb8, np.full((len(verts), 1), 255, np.uint8)], 1)
+    mesh = trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=colors, process=False)
+    area = mesh.area_faces
+    if (area <= 0).any():  # an SDF value exactly 0 at a lattice point gives zero-area triangles
+        mesh.update_faces(area > 0)
+        mesh.remove_unreferenced_vertices()
+    return mesh
+
+
 @torch.no_grad()
 def extract_mesh(
     field: TimeVaryingField,
@@ -196,19 +228,20 @@ def extract_mesh(
     chunk: int = 65536,
     device: str | torch.device | None = None,
     slab_points: int = DEFAULT_SLAB_POINTS,
-    culling: MeshCulling | None = None,
+    culling: MeshConfig | None = None,
     camera_centres: np.ndarray | None = None,
 ) -> trimesh.Trimesh:
     """Zero level set of the field at τ as one welded, vertex-coloured mesh in world metres.
 
     Args:
         field: the map; ``tau`` is ignored when ``field.time`` is False.
-        tau: normalised time (see :func:`tivne.checkpoint.time_to_tau`).
+        tau: field time (see :func:`tivne.field.time_to_tau`).
         resolution: lattice step in metres.
         chunk: points per field evaluation.
         device: where to evaluate; default the field's device (a field elsewhere is copied there).
         slab_points: lattice points per slab (bounds the temporaries).
-        culling: keep the mesh to observed space (:class:`MeshCulling`); None: every allocated voxel.
+        culling: keep the mesh to observed space (``min_hits``, ``dynamic_window``, ``backfaces`` of a
+            :class:`tivne.config.MeshConfig`); None: every allocated voxel.
         camera_centres: (N, 3) camera positions of the run (for ``culling.backfaces``).
     Returns:
         ``trimesh.Trimesh`` with faces oriented towards free space (positive SDF) and RGBA uint8
@@ -220,7 +253,6 @@ def extract_mesh(
     if device is not None and torch.device(device) != field_device(field):
         field = copy.deepcopy(field).to(device)  # leave the caller's field where it is
     grid = field.grid
-    device = field_device(field)
     if grid.num_voxels == 0:
         return empty_mesh()
     origin, dims = lattice_for_voxels(grid.voxel_coords(), grid.voxel_size, resolution)
@@ -231,74 +263,33 @@ def extract_mesh(
     zs = origin[2] + resolution * np.arange(nz)
     yz = np.stack(np.meshgrid(ys, zs, indexing="ij"), -1).reshape(-1, 2)  # (ny*nz, 2)
     planes_per_slab = max(2, slab_points // (ny * nz))
-
     all_verts, all_faces, n_verts = [], [], 0
     start = 0
     while start < nx - 1:
         stop = min(nx, start + planes_per_slab)  # lattice planes [start, stop); cells start..stop-2
         xs = origin[0] + resolution * np.arange(start, stop)
         pts = np.concatenate([np.repeat(xs, len(yz))[:, None], np.tile(yz, (len(xs), 1))], 1)
-        pts_t = torch.from_numpy(pts).to(device=device, dtype=torch.float32)
-        inside = grid.contains(pts_t)
-        if culling is not None and (culling.min_hits > 0 or culling.dynamic_window is not None):
-            window = culling.dynamic_window
-            inside &= near_observed(grid, pts_t, culling.min_hits, resolution, None if window is None else tau, window or 0.0)
-        inside_np = inside.cpu().numpy().reshape(len(xs), ny, nz)
-        mask = cell_mask(inside_np)
-        if mask.any():
-            volume = np.ones(inside_np.shape, dtype=np.float32)  # positive (free) where not evaluated
-            sdf, _ = query_field(field, pts_t[inside], tau, chunk)
-            volume[inside_np] = sdf.float().cpu().numpy()
-            vals = volume[inside_np]
-            if vals.min() < 0 < vals.max():
-                try:
-                    # 'descent' orients faces towards positive SDF (free space): a closed
-                    # object gets a positive trimesh volume (tested).
-                    v, f, _, _ = measure.marching_cubes(volume, level=0.0, mask=mask, gradient_direction="descent")
-                except (RuntimeError, ValueError):  # no crossing inside the masked cells
-                    v = None
-                if v is not None and len(f):
-                    v = v.astype(np.float64)
-                    v[:, 0] += start
-                    all_verts.append(v)
-                    all_faces.append(f.astype(np.int64) + n_verts)
-                    n_verts += len(v)
+        pts_t = torch.from_numpy(pts).to(device=field_device(field), dtype=torch.float32)
+        found = slab_surface(field, pts_t, (len(xs), ny, nz), tau, resolution, culling, chunk)
+        if found is not None:
+            v, f = found
+            v[:, 0] += start
+            all_verts.append(v)
+            all_faces.append(f + n_verts)
+            n_verts += len(v)
         start = stop - 1  # the next slab starts on this slab's last plane
     if not all_faces:
         return empty_mesh()
     verts, faces = weld_vertices(np.concatenate(all_verts), np.concatenate(all_faces))
     if len(faces) == 0:
         return empty_mesh()
-    verts = origin[None] + verts * resolution
-    _, rgb = query_field(field, torch.from_numpy(verts).to(device=device, dtype=torch.float32), tau, chunk)
-    rgb8 = (rgb.clamp(0, 1).cpu().numpy() * 255.0).round().astype(np.uint8)
-    colors = np.concatenate([rgb8, np.full((len(verts), 1), 255, np.uint8)], 1)
-    mesh = trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=colors, process=False)
-    area = mesh.area_faces
-    if (area <= 0).any():  # an SDF value exactly 0 at a lattice point gives zero-area triangles
-        mesh.update_faces(area > 0)
-        mesh.remove_unreferenced_vertices()
+    mesh = coloured_mesh(field, origin[None] + verts * resolution, faces, tau, chunk)
     if culling is not None and culling.backfaces and camera_centres is not None:
         mesh = cull_backfaces(mesh, camera_centres)
     return mesh if len(mesh.faces) else empty_mesh()
 
 
 def save_mesh(mesh: trimesh.Trimesh, path: str | Path) -> Path:
-    """Write a (binary) PLY atomically: a temporary file in the same folder, then rename.
-
-    An empty mesh is written as a valid PLY with no vertices, so a 4D sequence has no gaps.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    data = trimesh.exchange.ply.export_ply(mesh, encoding="binary")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    """Write a binary PLY atomically. An empty mesh is written as a valid PLY with no vertices, so a
+    4D sequence has no gaps."""
+    return atomic_write(path, trimesh.exchange.ply.export_ply(mesh, encoding="binary"))

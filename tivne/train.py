@@ -1,9 +1,14 @@
-"""Entry point: ``python -m tivne.train dataset=cube field=tivne sampler=mask_weighted keyframe=overlap``."""
+"""Entry point: ``python -m tivne.train dataset=cube field=tivne sampler=mask_weighted keyframe=overlap``.
+
+The only place that reads the Hydra config: it checks every section against :mod:`tivne.config`
+before any data is read, composes the typed stages and hands them to the Lightning trainer.
+"""
 
 from __future__ import annotations
 
 import json
-import sys
+import typing
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -13,43 +18,65 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import MissingMandatoryValue
 
-from data_modules.frame import DatasetError
 from data_modules.sequence import SequenceDataModule
-from tivne.field.networks import TimeVaryingField
-from tivne.keyframes import KeyframePolicy
-from tivne.losses import LossWeights
-from tivne.mapping import MappingConfig
-from tivne.rendering import RenderConfig
-from tivne.runtime import configure_runtime
-from tivne.sampling import PixelSampler
-from tivne.system import OutputConfig, TivNeSLAM, write_metrics
-from tivne.tracking import TrackingConfig
+from tivne.cli import one_line_errors, register_defaults
+from tivne.config import (
+    FieldConfig, KeyframeConfig, LossWeights, MappingConfig, MeshConfig, OutputConfig, RenderConfig, RuntimeConfig,
+    SamplerConfig, TrackingConfig, TrainerConfig,
+)
+from tivne.evaluation import evaluate_run
+from tivne.render.samplers import PixelSampler
+from tivne.slam.keyframes import KeyframePolicy
+from tivne.slam.outputs import RunDir
+from tivne.slam.system import TivNeSLAM
+from tivne.utils import configure_runtime
+
+register_defaults()
 
 
 def plain(node: Any) -> dict[str, Any]:
     return OmegaConf.to_container(node, resolve=True)  # type: ignore[return-value]
 
 
-def build_system(cfg: DictConfig, intrinsics, run_dir: str | Path) -> TivNeSLAM:
-    """Compose the typed stages from the Hydra config (the only place that reads it)."""
-    field_kwargs = plain(cfg.field)
-    field_kwargs.pop("name", None)
-    output = plain(cfg.output)
-    output["mesh_times"] = tuple(output.get("mesh_times") or ())
+@dataclass(frozen=True)
+class TrainSettings:
+    """Every checked section of a training run's config."""
+
+    runtime: RuntimeConfig
+    field: FieldConfig
+    render: RenderConfig
+    loss: LossWeights
+    tracking: TrackingConfig
+    mapping: MappingConfig
+    keyframe: KeyframeConfig
+    sampler: SamplerConfig
+    mesh: MeshConfig
+    output: OutputConfig
+    trainer: TrainerConfig
+
+    @classmethod
+    def from_config(cls, cfg: DictConfig) -> "TrainSettings":
+        """Check every section (raises :class:`tivne.config.ConfigError` naming the bad key)."""
+        sections = typing.get_type_hints(cls)
+        return cls(**{name: kind.from_mapping(plain(cfg[name])) for name, kind in sections.items()})
+
+
+def build_system(cfg: DictConfig, intrinsics, run_dir: str | Path, settings: TrainSettings | None = None) -> TivNeSLAM:
+    """Compose the typed stages from the config."""
+    s = settings or TrainSettings.from_config(cfg)
     return TivNeSLAM(
-        field=TimeVaryingField(**field_kwargs),
-        field_kwargs=field_kwargs,
+        field_cfg=s.field,
         intrinsics=intrinsics,
-        sampler=PixelSampler(**plain(cfg.sampler)),
-        keyframes=KeyframePolicy(**plain(cfg.keyframe)),
+        sampler=PixelSampler(s.sampler),
+        keyframes=KeyframePolicy(s.keyframe),
         masks=instantiate(cfg.masks.provider),
-        render=RenderConfig(**plain(cfg.render)),
-        loss=LossWeights(**plain(cfg.loss)),
-        tracking=TrackingConfig(**plain(cfg.tracking)),
-        mapping=MappingConfig(**plain(cfg.mapping)),
-        output=OutputConfig(**output),
+        render=s.render,
+        loss=s.loss,
+        tracking=s.tracking,
+        mapping=s.mapping,
+        mesh=s.mesh,
+        output=s.output,
         run_dir=run_dir,
         seed=int(cfg.seed),
     )
@@ -57,52 +84,40 @@ def build_system(cfg: DictConfig, intrinsics, run_dir: str | Path) -> TivNeSLAM:
 
 def run(cfg: DictConfig, run_dir: str | Path) -> dict[str, Any]:
     """Run SLAM over the configured sequence and return metrics.json's content."""
-    configure_runtime(cfg.runtime.threads, cfg.runtime.tune_allocator)
+    settings = TrainSettings.from_config(cfg)  # before any data is read
+    configure_runtime(settings.runtime.threads, settings.runtime.tune_allocator)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     dataset = instantiate(cfg.dataset)
     datamodule = SequenceDataModule(dataset, **plain(cfg.data))
-    system = build_system(cfg, datamodule.intrinsics, run_dir)
+    system = build_system(cfg, datamodule.intrinsics, run_dir, settings)
     trainer = L.Trainer(
         max_epochs=1,
-        accelerator=cfg.trainer.accelerator,
-        devices=cfg.trainer.devices,
-        logger=TensorBoardLogger(save_dir=str(run_dir), name="", version="tb", default_hp_metric=False),
+        accelerator=settings.trainer.accelerator,
+        devices=settings.trainer.devices,
+        logger=TensorBoardLogger(save_dir=str(run_dir), name="", version=RunDir.TENSORBOARD, default_hp_metric=False),
         enable_checkpointing=False,
         enable_model_summary=False,
         num_sanity_val_steps=0,
         inference_mode=False,
         log_every_n_steps=1,
-        enable_progress_bar=bool(cfg.trainer.progress_bar),
+        enable_progress_bar=settings.trainer.progress_bar,
         default_root_dir=str(run_dir),
     )
     trainer.fit(system, datamodule=datamodule)
     metrics = dict(system.last_metrics)
-    if cfg.output.evaluate:
-        try:
-            from tivne.evaluate import evaluate_run
-        except ImportError:
-            evaluate_run = None
-        if evaluate_run is not None:
-            extra = evaluate_run(Path(run_dir), dataset_view=datamodule.view, mesh_resolution=cfg.output.mesh_resolution)
-            write_metrics(Path(run_dir) / "metrics.json", extra)
-            metrics.update(extra)
+    if settings.output.evaluate:
+        extra = evaluate_run(
+            Path(run_dir), dataset_view=datamodule.view, mesh_resolution=settings.mesh.resolution, mesh_culling=settings.mesh
+        )
+        metrics = RunDir(run_dir).merge_metrics(extra)
     return metrics
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+@one_line_errors
 def main(cfg: DictConfig) -> float | None:
     run_dir = HydraConfig.get().runtime.output_dir
-    try:
-        metrics = run(cfg, run_dir)
-    except (DatasetError, MissingMandatoryValue) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        sys.exit(2)
-    except Exception as exc:  # a reader's DatasetError wrapped by Hydra's instantiate
-        cause = exc.__cause__ or exc.__context__
-        if isinstance(cause, (DatasetError, MissingMandatoryValue)):
-            print(f"error: {cause}", file=sys.stderr)
-            sys.exit(2)
-        raise
+    metrics = run(cfg, run_dir)
     keys = ["frames", "s_per_frame", "track_ms_per_iter", "map_ms_per_iter", "ate_rmse_m", "peak_rss_mb"]
     print(json.dumps({k: metrics.get(k) for k in keys}))
     print(f"results in {run_dir}")

@@ -11,11 +11,12 @@ import pytest
 import torch
 import trimesh
 
-from tivne.checkpoint import save_checkpoint
+from tivne.slam.checkpoint import save_checkpoint
 from tivne.field.networks import FieldOutputs, TimeVaryingField
 from tivne.field.voxels import unpack_keys
 from tivne.mesh import mesh_run, select_mesh_times
-from tivne.meshing import MeshCulling, cull_backfaces, extract_mesh, save_mesh
+from tivne.config import MeshConfig
+from tivne.meshing import cull_backfaces, extract_mesh, save_mesh
 
 RADIUS = 0.3
 TRUNCATION = 0.05
@@ -183,7 +184,7 @@ def saved_run(tmp_path: Path) -> Path:
 
 def test_mesh_run_every(tmp_path):
     run_dir = saved_run(tmp_path)
-    written = mesh_run(run_dir, every=1, resolution=0.05, device="cpu")
+    written = mesh_run(run_dir, MeshConfig(resolution=0.05), every=1, device="cpu")
     assert [round(t, 3) for t, *_ in written] == [10.0, 10.1, 10.2]
     assert sorted(p.name for p in (run_dir / "meshes").iterdir()) == ["mesh_t10.000.ply", "mesh_t10.100.ply", "mesh_t10.200.ply"]
     assert all(n_faces > 0 for _, _, n_faces, _ in written)
@@ -195,7 +196,7 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
 
 def test_cli_round_trip_and_errors(tmp_path):
     run_dir = saved_run(tmp_path)
-    out = run_cli(f"run_dir={run_dir}", "times=[10.0,10.2]", "resolution=0.05")
+    out = run_cli(f"run_dir={run_dir}", "mesh.times=[10.0,10.2]", "mesh.resolution=0.05")
     assert out.returncode == 0, out.stderr[-2000:]
     lines = out.stdout.strip().splitlines()
     assert len(lines) == 2 and lines[0].startswith("t=10.000s vertices=") and "mesh_t10.200.ply" in lines[1]
@@ -204,7 +205,7 @@ def test_cli_round_trip_and_errors(tmp_path):
         assert len(mesh.faces) > 100 and radial_error(mesh).max() < 0.03
     assert not (run_dir / "outputs").exists() and not (REPO / "mesh.log").exists()
 
-    out = run_cli(f"run_dir={run_dir}", "times=[11.0]")
+    out = run_cli(f"run_dir={run_dir}", "mesh.times=[11.0]")
     assert out.returncode == 2 and out.stderr.startswith("error:") and "outside the recorded range" in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1
 
@@ -234,7 +235,7 @@ def test_min_hits_keeps_the_mesh_to_observed_voxels():
     far = (centres.norm(dim=-1) - RADIUS).abs() > 0.15
     field.ghost = centres[torch.nonzero((hits == 0) & far)[0, 0]]
     with_ghost = extract_mesh(field, 0.0, resolution=0.02)
-    observed = extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1))
+    observed = extract_mesh(field, 0.0, resolution=0.02, culling=MeshConfig(min_hits=1))
     near_ghost = lambda mesh: int(((torch.as_tensor(mesh.vertices) - field.ghost.double()).norm(dim=-1) < 0.05).sum())
     assert near_ghost(with_ghost) > 10 and near_ghost(observed) == 0
     assert radial_error(observed).max() < 0.01
@@ -265,14 +266,14 @@ def test_dynamic_window_shows_a_moving_object_only_where_it_was_seen_then():
         pts = ball_surface(x)
         field.grid.allocate(pts, dilation=1, dynamic=torch.ones(len(pts), dtype=torch.bool), tau=tau)
     sides = lambda mesh: (int((mesh.vertices[:, 0] < 0).sum()), int((mesh.vertices[:, 0] > 0).sum()))
-    at0 = extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1, dynamic_window=0.2))
-    at1 = extract_mesh(field, 1.0, resolution=0.02, culling=MeshCulling(min_hits=1, dynamic_window=0.2))
+    at0 = extract_mesh(field, 0.0, resolution=0.02, culling=MeshConfig(min_hits=1, dynamic_window=0.2))
+    at1 = extract_mesh(field, 1.0, resolution=0.02, culling=MeshConfig(min_hits=1, dynamic_window=0.2))
     assert sides(at0)[0] > 100 and sides(at0)[1] == 0
     assert sides(at1)[0] == 0 and sides(at1)[1] > 100
     assert at0.is_watertight and at1.is_watertight  # the whole ball, no cut
     unculled = extract_mesh(field, 0.0, resolution=0.02)
     assert min(sides(unculled)) > 100  # the trail is in the field itself
-    never = extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1, dynamic_window=None))
+    never = extract_mesh(field, 0.0, resolution=0.02, culling=MeshConfig(min_hits=1, dynamic_window=None))
     assert len(never.faces) == 0
 
 
@@ -293,15 +294,15 @@ def test_backface_culling_drops_the_surface_behind_the_wall():
     for radius in (0.5, 0.6):
         field.grid.allocate(sphere_surface(8000, radius), dilation=1)
     centres = np.array([[0.0, 0.0, 0.0], [0.1, -0.05, 0.0]])  # cameras inside the room
-    both = extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1, backfaces=False), camera_centres=centres)
-    culled = extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1), camera_centres=centres)
+    both = extract_mesh(field, 0.0, resolution=0.02, culling=MeshConfig(min_hits=1, backfaces=False), camera_centres=centres)
+    culled = extract_mesh(field, 0.0, resolution=0.02, culling=MeshConfig(min_hits=1), camera_centres=centres)
     r_both = np.linalg.norm(both.vertices, axis=1)
     r_culled = np.linalg.norm(culled.vertices, axis=1)
     assert (np.abs(r_both - 0.6) < 0.01).sum() > 100 and (np.abs(r_both - 0.5) < 0.01).sum() > 100
     assert (np.abs(r_culled - 0.6) < 0.02).sum() == 0  # the back surface is gone ...
     assert abs(culled.area - 4 * np.pi * 0.5**2) / (4 * np.pi * 0.5**2) < 0.05  # ... the wall is whole
     # without camera centres nothing is culled
-    assert len(extract_mesh(field, 0.0, resolution=0.02, culling=MeshCulling(min_hits=1)).faces) == len(both.faces)
+    assert len(extract_mesh(field, 0.0, resolution=0.02, culling=MeshConfig(min_hits=1)).faces) == len(both.faces)
 
 
 def test_cull_backfaces_keeps_faces_any_camera_sees_from_their_free_side():

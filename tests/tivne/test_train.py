@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from tivne.checkpoint import load_checkpoint
+from tivne.slam.checkpoint import load_checkpoint
 from tivne.geometry import read_tum_trajectory
 from tivne.train import run
 

@@ -11,6 +11,12 @@ from torch import nn
 from tivne.field.voxels import SparseVoxelGrid
 
 
+def time_to_tau(timestamp: float, t0: float, time_scale: float) -> float:
+    """Field time τ = (t - t0) · time_scale: 0 on the first frame, never normalised by the sequence
+    length (it is unknown online)."""
+    return (float(timestamp) - float(t0)) * float(time_scale)
+
+
 def time_encoding(tau: torch.Tensor, num_frequencies: int) -> torch.Tensor:
     """Positional encoding γ(τ) = (τ, sin(2^k π τ), cos(2^k π τ)) for k < L.
 

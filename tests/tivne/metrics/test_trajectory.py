@@ -1,0 +1,250 @@
+"""Tests of tivne.metrics.trajectory: association, Umeyama, ATE / RPE (cross-checked with evo)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from tivne import geometry as G
+from tivne.metrics import trajectory as M
+
+F64 = torch.float64
+
+
+def random_walk_poses(n: int, seed: int) -> np.ndarray:
+    """(n, 4, 4) float64 smooth random camera trajectory (a few metres, full 3-D rotation changes)."""
+    gen = torch.Generator().manual_seed(seed)
+    steps = torch.randn(n, 6, generator=gen, dtype=F64) * torch.tensor([0.05, 0.05, 0.05, 0.03, 0.03, 0.03], dtype=F64)
+    T = torch.eye(4, dtype=F64)
+    out = []
+    for xi in G.se3_exp(steps):
+        T = T @ xi
+        out.append(T)
+    return torch.stack(out).numpy()
+
+
+def similarity(R: np.ndarray, t: np.ndarray, s: float) -> np.ndarray:
+    S = np.eye(4)
+    S[:3, :3] = s * R
+    S[:3, 3] = t
+    return S
+
+
+def apply_sim3_to_poses(S: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Map c2w poses by a similarity: positions s R p + t, orientations R_S R (stays in SE(3))."""
+    s = np.cbrt(np.linalg.det(S[:3, :3]))
+    out = poses.copy()
+    out[:, :3, :3] = (S[:3, :3] / s) @ poses[:, :3, :3]
+    out[:, :3, 3] = poses[:, :3, 3] @ S[:3, :3].T + S[:3, 3]
+    return out
+
+
+def rot(seed: int) -> np.ndarray:
+    q = torch.randn(4, generator=torch.Generator().manual_seed(seed), dtype=F64)
+    return G.quat_to_matrix(q).numpy()
+
+
+class TestAssociation:
+    def test_exact_and_jittered(self):
+        ref = np.arange(10) * 0.033
+        est = ref[::2] + 0.004
+        i_est, i_ref = M.associate_by_timestamp(est, ref, max_diff=0.01)
+        assert i_est.tolist() == list(range(5)) and i_ref.tolist() == [0, 2, 4, 6, 8]
+        assert i_est.dtype == np.int64
+
+    def test_one_to_one_greedy(self):
+        # Both estimates are closest to ref[1]; the closer one (est 1) wins it, est 0 gets ref[0].
+        ref = np.array([0.0, 1.0])
+        est = np.array([0.985, 0.999])
+        i_est, i_ref = M.associate_by_timestamp(est, ref, max_diff=0.02)
+        assert list(zip(i_est.tolist(), i_ref.tolist())) == [(1, 1)]
+        i_est, i_ref = M.associate_by_timestamp(est, ref, max_diff=2.0)
+        assert list(zip(i_est.tolist(), i_ref.tolist())) == [(0, 0), (1, 1)]
+
+    def test_outside_tolerance_and_empty(self):
+        i_est, i_ref = M.associate_by_timestamp([0.0, 10.0], [0.5, 10.001], max_diff=0.02)
+        assert i_est.tolist() == [1] and i_ref.tolist() == [1]
+        e1, e2 = M.associate_by_timestamp([], [1.0])
+        assert len(e1) == len(e2) == 0
+        e1, e2 = M.associate_by_timestamp([5.0], [1.0])
+        assert len(e1) == len(e2) == 0
+
+    def test_unsorted_inputs_and_torch(self):
+        ref = torch.tensor([0.3, 0.1, 0.2], dtype=F64)
+        est = np.array([0.201, 0.101, 0.301])
+        i_est, i_ref = M.associate_by_timestamp(est, ref)
+        assert i_est.tolist() == [0, 1, 2] and i_ref.tolist() == [2, 1, 0]
+
+    def test_matches_brute_force_greedy(self):
+        rng = np.random.default_rng(0)
+        est = np.sort(rng.uniform(0, 3, 80))
+        ref = np.sort(rng.uniform(0, 3, 100))
+        cands = sorted((abs(a - b), i, j) for i, a in enumerate(est) for j, b in enumerate(ref) if abs(a - b) <= 0.02)
+        used_i, used_j, pairs = set(), set(), []
+        for _, i, j in cands:
+            if i not in used_i and j not in used_j:
+                used_i.add(i), used_j.add(j), pairs.append((i, j))
+        i_est, i_ref = M.associate_by_timestamp(est, ref, 0.02)
+        assert list(zip(i_est.tolist(), i_ref.tolist())) == sorted(pairs)
+
+    def test_by_index(self):
+        a, b = M.associate_by_index(5, 3)
+        assert a.tolist() == b.tolist() == [0, 1, 2]
+
+
+class TestUmeyama:
+    @pytest.mark.parametrize("with_scale", [False, True])
+    def test_recovers_transform(self, with_scale):
+        rng = np.random.default_rng(1)
+        src = rng.normal(size=(50, 3))
+        R_true, t_true, s_true = rot(2), np.array([1.0, -2.0, 0.5]), (2.5 if with_scale else 1.0)
+        dst = s_true * src @ R_true.T + t_true
+        R, t, s = M.umeyama_alignment(src, dst, with_scale=with_scale)
+        assert R.dtype == np.float64 and t.shape == (3,) and isinstance(s, float)
+        assert np.allclose(R, R_true, atol=1e-10) and np.allclose(t, t_true) and math.isclose(s, s_true)
+
+    def test_reflection_is_never_returned(self):
+        rng = np.random.default_rng(3)
+        src = rng.normal(size=(30, 3))
+        dst = src * np.array([1.0, 1.0, -1.0])  # a mirror image: best fit would be a reflection
+        R, _, _ = M.umeyama_alignment(src, dst)
+        assert math.isclose(np.linalg.det(R), 1.0, abs_tol=1e-10)
+        assert np.allclose(R @ R.T, np.eye(3), atol=1e-10)
+
+    def test_torch_input_and_errors(self):
+        src = torch.randn(10, 3, dtype=torch.float32)
+        R, t, s = M.umeyama_alignment(src, src)
+        assert np.allclose(R, np.eye(3), atol=1e-6) and np.allclose(t, 0, atol=1e-6)
+        with pytest.raises(ValueError):
+            M.umeyama_alignment(np.zeros((4, 3)), np.zeros((5, 3)))
+        with pytest.raises(ValueError, match="scale"):
+            M.umeyama_alignment(np.ones((4, 3)), np.zeros((4, 3)), with_scale=True)
+
+
+class TestATE:
+    def test_zero_error_after_alignment(self):
+        ref = random_walk_poses(40, seed=0)
+        est = apply_sim3_to_poses(similarity(rot(4), np.array([3.0, 1.0, -1.0]), 1.0), ref)
+        res = M.absolute_trajectory_error(est, ref, align="se3")
+        assert res.rmse < 1e-10 and res.max < 1e-10 and res.num_poses == 40
+        assert M.absolute_trajectory_error(est, ref, align="none").rmse > 0.5
+        scaled = apply_sim3_to_poses(similarity(rot(5), np.zeros(3), 0.3), ref)
+        assert M.absolute_trajectory_error(scaled, ref, align="sim3").rmse < 1e-10
+        assert M.absolute_trajectory_error(scaled, ref, align="se3").rmse > 1e-3
+
+    def test_known_offset_without_alignment(self):
+        ref = random_walk_poses(20, seed=1)
+        est = ref.copy()
+        est[:, 0, 3] += 0.1
+        res = M.absolute_trajectory_error(torch.from_numpy(est), ref, align="none")
+        assert np.allclose(res.errors, 0.1) and math.isclose(res.rmse, 0.1) and res.std < 1e-12
+        assert res.as_metrics() == {
+            "ate_rmse_m": res.rmse,
+            "ate_mean_m": res.mean,
+            "ate_median_m": res.median,
+            "ate_std_m": res.std,
+            "ate_max_m": res.max,
+        }
+        assert set(res.as_metrics("eval_ate")) >= {"eval_ate_rmse_m"}
+        assert np.allclose(res.alignment_matrix, np.eye(4))
+
+    def test_errors(self):
+        ref = random_walk_poses(5, seed=2)
+        with pytest.raises(ValueError):
+            M.absolute_trajectory_error(ref[:4], ref)
+        with pytest.raises(ValueError, match="align"):
+            M.absolute_trajectory_error(ref, ref, align="sim2")
+        with pytest.raises(ValueError, match="no timestamps"):
+            M.ate_from_trajectories([0.0], ref[:1], [5.0], ref[:1])
+
+    def test_from_trajectories_associates(self):
+        ref = random_walk_poses(30, seed=3)
+        ts_ref = np.arange(30) * 0.033
+        est = ref[5:25:2]
+        ts_est = ts_ref[5:25:2] + 0.003
+        res = M.ate_from_trajectories(ts_est, est, ts_ref, ref)
+        assert res.rmse < 1e-10
+        assert res.idx_ref.tolist() == list(range(5, 25, 2)) and res.idx_est.tolist() == list(range(10))
+
+
+def noisy_pair(seed: int, scale: float):
+    """Reference and a noisy, Sim(3)-transformed, time-jittered, subsampled estimate."""
+    rng = np.random.default_rng(seed)
+    n = 120
+    ref = random_walk_poses(n, seed=seed)
+    ts_ref = 1000.0 + np.arange(n) / 30.0
+    keep = np.sort(rng.choice(n, size=100, replace=False))
+    est = apply_sim3_to_poses(similarity(rot(seed + 100), rng.normal(size=3), scale), ref[keep])
+    est[:, :3, 3] += rng.normal(scale=0.03, size=(len(keep), 3))
+    noise_rot = G.se3_exp(torch.from_numpy(np.concatenate([np.zeros((len(keep), 3)), rng.normal(scale=0.02, size=(len(keep), 3))], 1)))
+    est[:, :3, :3] = est[:, :3, :3] @ noise_rot[:, :3, :3].numpy()
+    ts_est = ts_ref[keep] + rng.uniform(-0.005, 0.005, size=len(keep))
+    return ts_est, est, ts_ref, ref
+
+
+class TestAgainstEvo:
+    @pytest.mark.parametrize("align,scale", [("se3", 1.0), ("sim3", 0.4)])
+    def test_ate_matches_evo(self, align, scale):
+        pytest.importorskip("evo", reason="evo not installed (pip install 'tivne[eval]')")
+        from evo.core import metrics as evo_metrics
+        from evo.core import sync
+        from evo.core.trajectory import PoseTrajectory3D
+
+        ts_est, est, ts_ref, ref = noisy_pair(seed=7 if align == "se3" else 8, scale=scale)
+        traj_est = PoseTrajectory3D(poses_se3=list(est), timestamps=ts_est)
+        traj_ref = PoseTrajectory3D(poses_se3=list(ref), timestamps=ts_ref)
+        traj_ref, traj_est = sync.associate_trajectories(traj_ref, traj_est, max_diff=0.02)
+        _, _, evo_scale = traj_est.align(traj_ref, correct_scale=align == "sim3")
+        ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+        ape.process_data((traj_ref, traj_est))
+        stats = ape.get_all_statistics()
+
+        ours = M.ate_from_trajectories(ts_est, est, ts_ref, ref, max_diff=0.02, align=align)
+        assert ours.num_poses == traj_est.num_poses == 100
+        for key in ("rmse", "mean", "median", "std", "max"):
+            assert abs(getattr(ours, key) - stats[key]) < 1e-6, (key, getattr(ours, key), stats[key])
+        assert np.allclose(ours.aligned_positions, traj_est.positions_xyz, atol=1e-6)
+        assert abs(ours.scale - evo_scale) < 1e-9
+        if align == "sim3":
+            assert 1.5 < ours.scale < 3.0  # ~1 / 0.4, biased low by the position noise
+
+    def test_rpe_matches_evo(self):
+        pytest.importorskip("evo", reason="evo not installed (pip install 'tivne[eval]')")
+        from evo.core import metrics as evo_metrics
+        from evo.core.trajectory import PosePath3D
+
+        _, est, _, ref = noisy_pair(seed=9, scale=1.0)
+        ref = ref[: len(est)]  # RPE needs associated poses; any pairing works for the comparison
+        ours = M.relative_pose_error(est, ref, delta=3)
+        for relation, ours_rmse in [
+            (evo_metrics.PoseRelation.translation_part, ours.trans_rmse_m),
+            (evo_metrics.PoseRelation.rotation_angle_deg, ours.rot_rmse_deg),
+        ]:
+            # all_pairs=True: every (i, i + delta), as TUM's evaluate_rpe and ours (evo's default
+            # takes non-overlapping pairs 0-3, 3-6, ...).
+            rpe = evo_metrics.RPE(relation, delta=3, delta_unit=evo_metrics.Unit.frames, all_pairs=True)
+            rpe.process_data((PosePath3D(poses_se3=list(ref)), PosePath3D(poses_se3=list(est))))
+            assert abs(ours_rmse - rpe.get_statistic(evo_metrics.StatisticsType.rmse)) < 1e-6
+
+
+class TestRPE:
+    def test_zero_for_rigidly_moved_trajectory(self):
+        ref = random_walk_poses(15, seed=4)
+        est = apply_sim3_to_poses(similarity(rot(6), np.array([1.0, 2.0, 3.0]), 1.0), ref)
+        res = M.relative_pose_error(est, ref)
+        assert res.trans_rmse_m < 1e-10 and res.rot_rmse_deg < 1e-5 and len(res.trans_errors) == 14
+        assert set(res.as_metrics()) == {"rpe_trans_rmse_m", "rpe_trans_mean_m", "rpe_rot_rmse_deg", "rpe_rot_mean_deg"}
+
+    def test_known_drift(self):
+        ref = np.repeat(np.eye(4)[None], 5, 0)
+        est = ref.copy()
+        est[:, 0, 3] = 0.01 * np.arange(5)  # 1 cm drift per frame
+        est[:, :3, :3] = G.se3_exp(torch.tensor([[0, 0, 0, 0, 0, math.radians(2.0) * k] for k in range(5)], dtype=F64))[:, :3, :3].numpy()
+        res = M.relative_pose_error(est, ref, delta=1)
+        assert np.allclose(res.rot_errors, 2.0) and np.allclose(res.trans_errors, 0.01)
+        with pytest.raises(ValueError):
+            M.relative_pose_error(est, ref, delta=5)

@@ -1,0 +1,52 @@
+"""The run directory: paths, the one metrics.json merger, atomic writes (tivne/slam/outputs.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import torch
+
+from tivne.geometry import read_tum_trajectory
+from tivne.slam.outputs import RunDir, image_panels
+
+
+def test_merge_metrics_merges_replaces_and_keeps_a_corrupt_file_aside(tmp_path):
+    run = RunDir(tmp_path)
+    run.merge_metrics({"frames": 3, "ate_rmse_m": None})
+    merged = run.merge_metrics({"psnr_db": 20.5, "frames": 4, "nan_value": math.nan, "np": np.float32(1.5)})
+    assert merged == json.loads(run.metrics.read_text()) == {"frames": 4, "ate_rmse_m": None, "psnr_db": 20.5, "nan_value": None, "np": 1.5}
+    run.metrics.write_text("{broken")
+    assert run.merge_metrics({"frames": 1}) == {"frames": 1}
+    assert (tmp_path / "metrics.json.corrupt").read_text() == "{broken"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["metrics.json", "metrics.json.corrupt"]  # no temporaries
+
+
+def test_merge_metrics_drops_a_stale_reason_once_its_metric_is_computed(tmp_path):
+    run = RunDir(tmp_path)
+    run.merge_metrics({"ate_rmse_m": None, "ate_reason": "no GT"})
+    assert run.merge_metrics({"ate_rmse_m": 0.01})["ate_rmse_m"] == 0.01
+    assert "ate_reason" not in run.read_metrics()
+
+
+def test_paths_and_trajectory_round_trip(tmp_path):
+    run = RunDir(tmp_path)
+    assert run.mesh_path(1.23456).name == "mesh_t1.235.ply" and run.mesh_path(0).parent.name == "meshes"
+    assert run.checkpoint == tmp_path / "checkpoints" / "slam.pt"
+    poses = torch.eye(4, dtype=torch.float64).repeat(3, 1, 1)
+    poses[:, 0, 3] = torch.tensor([0.0, 0.5, 1.0])
+    run.write_trajectory([0.0, 0.1, 0.2], poses)
+    ts, read = read_tum_trajectory(run.trajectory)
+    assert np.allclose(ts, [0.0, 0.1, 0.2]) and torch.allclose(read, poses)
+
+
+def test_image_panels_put_observed_left_of_rendered(tmp_path):
+    rgb_obs, rgb = torch.zeros(4, 5, 3), torch.ones(4, 5, 3)
+    depth_obs, depth = torch.full((4, 5), 2.0), torch.full((4, 5), 2.06)
+    panels = image_panels(rgb, depth, rgb_obs, depth_obs)
+    assert panels["rgb"].shape == (4, 10, 3) and panels["rgb"].dtype == np.uint8
+    assert panels["rgb"][0, 0].tolist() == [0, 0, 0] and panels["rgb"][0, 9].tolist() == [255, 255, 255]
+    assert panels["depth_error"].shape == (4, 5, 3) and int(panels["depth_error"].max()) == 255  # >= 5 cm = white
+    path = RunDir(tmp_path).write_image(RunDir(tmp_path).render_path(7, "rgb"), panels["rgb"])
+    assert path.name == "frame00007_rgb.png" and path.stat().st_size > 0

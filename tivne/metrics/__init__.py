@@ -1,0 +1,1 @@
+"""Pure evaluation metrics: trajectory (ATE, RPE), surface (accuracy, completion, ghosts), image (PSNR, SSIM, LPIPS)."""

@@ -1,0 +1,80 @@
+"""Training losses (paper Eq. 6-10): colour, depth, free space, SDF and background offset."""
+
+from __future__ import annotations
+
+import torch
+
+from tivne.config import LossWeights
+from tivne.render.renderer import RenderBatch, RenderedRays
+
+
+def balance_factors(n_free: torch.Tensor, n_trunc: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """β_space = 1 - P_fs/(P_fs+P_tr), β_sdf = 1 - P_tr/(P_fs+P_tr): the majority class is down-weighted."""
+    total = (n_free + n_trunc).clamp_min(1)
+    return 1 - n_free / total, 1 - n_trunc / total
+
+
+def sdf_losses(
+    sdf: torch.Tensor, z: torch.Tensor, depth: torch.Tensor, truncation: float, ray_mask: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Free-space and SDF losses on samples.
+
+    Samples with z < D - tr are free space (ŝ -> 1); samples with |z - D| <= tr regress
+    ŝ·tr = D - z. Means run over all sample slots (as Vox-Fusion), weighted by β.
+
+    Args:
+        sdf: (N, M) truncation units; z: (N, M); depth: (N,) observed; ray_mask: (N,) bool rays to use.
+    Returns:
+        (free_space_loss, sdf_loss) scalars.
+    """
+    d = depth[:, None]
+    free = z < d - truncation
+    trunc = (z - d).abs() <= truncation
+    if ray_mask is not None:
+        free = free & ray_mask[:, None]
+        trunc = trunc & ray_mask[:, None]
+    beta_fs, beta_tr = balance_factors(free.sum().float(), trunc.sum().float())
+    slots = sdf.numel()
+    fs = ((sdf - 1).pow(2) * free).sum() / slots
+    tr = ((z + sdf * truncation - d).pow(2) * trunc).sum() / slots
+    return beta_fs * fs, beta_tr * tr
+
+
+def robust_ray_mask(rendered: RenderedRays, depth: torch.Tensor, factor: float) -> torch.Tensor:
+    """Reject rays whose depth residual exceeds ``factor`` x the batch median (tracking outliers,
+    e.g. a moving object the frozen map has not seen yet). ``factor <= 0`` keeps every ray."""
+    residual = (rendered.depth - depth).abs().detach()
+    keep = rendered.weight_sum.detach() > 1e-6
+    if factor > 0 and keep.any():
+        keep = keep & (residual <= factor * residual[keep].median().clamp_min(1e-4))
+    return keep
+
+
+def slam_loss(
+    batch: RenderBatch, truncation: float, weights: LossWeights, ray_mask: torch.Tensor | None = None
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """Total loss Eq. (6) of a rendered batch and its terms (detached) for logging.
+
+    ``ray_mask`` (N,) bool: the rays to use (default: rays that rendered any weight).
+
+    The offset term ‖Δe‖² runs over samples of background rays, only when the rays carry a motion
+    mask: without one nothing is known to be static, so the deformation is left free.
+    """
+    rays, z, rendered, outputs = batch.rays, batch.z, batch.rendered, batch.outputs
+    if ray_mask is None:
+        ray_mask = rendered.weight_sum.detach() > 1e-6
+    m = ray_mask.float()
+    count = m.sum().clamp_min(1)
+    color = ((rendered.rgb - rays.rgb).abs().mean(-1) * m).sum() / count
+    depth = ((rendered.depth - rays.depth).abs() * m).sum() / count
+    free_space, sdf = sdf_losses(outputs.sdf, z, rays.depth, truncation, ray_mask)
+    total = weights.color * color + weights.depth * depth + weights.free_space * free_space + weights.sdf * sdf
+    terms = {"color": color, "depth": depth, "free_space": free_space, "sdf": sdf}
+    if rays.has_mask and weights.offset > 0:
+        background = (~rays.dynamic & ray_mask)[:, None] & outputs.valid
+        offset = (outputs.offset_sq * background).sum() / background.sum().clamp_min(1)
+        total = total + weights.offset * offset
+        terms["offset"] = offset
+    terms = {k: v.detach() for k, v in terms.items()}
+    terms["total"] = total.detach()
+    return total, terms

@@ -1,0 +1,123 @@
+"""Stage 2 of the render path: which pixels become rays (pixel samplers) and where the samples go
+along them (depth-guided placement)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from tivne.config import RenderConfig, SamplerConfig
+
+
+def sample_from_mask(mask: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Draw ``n`` flat pixel indices uniformly, with replacement, from the True pixels of ``mask``.
+
+    Args:
+        mask: (H, W) bool.
+    Returns:
+        (n,) int64 flat indices; empty when the mask has no True pixel.
+    """
+    return draw(mask.reshape(-1).nonzero()[:, 0], n, generator)
+
+
+def draw(candidates: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    """(C,) candidate indices -> (n,) drawn uniformly with replacement (empty if C == 0)."""
+    if candidates.numel() == 0 or n <= 0:
+        return candidates[:0]
+    pick = torch.randint(candidates.numel(), (n,), generator=generator).to(candidates.device)
+    return candidates[pick]
+
+
+@dataclass
+class PixelPool:
+    """Flat indices of a frame's usable pixels, computed once and drawn from every iteration.
+
+    valid: (Nv,) pixels with depth; dynamic / static: (Nd,) / (Ns,) split of them by the motion
+    mask (dynamic empty and static = valid without a mask).
+    """
+
+    valid: torch.Tensor
+    dynamic: torch.Tensor
+    static: torch.Tensor
+
+    @classmethod
+    def from_masks(cls, valid: torch.Tensor, dynamic: torch.Tensor | None) -> "PixelPool":
+        """valid, dynamic: (H, W) bool."""
+        flat_valid = valid.reshape(-1)
+        all_idx = flat_valid.nonzero()[:, 0]
+        if dynamic is None:
+            return cls(all_idx, all_idx[:0], all_idx)
+        dyn = dynamic.reshape(-1)[all_idx]
+        return cls(all_idx, all_idx[dyn], all_idx[~dyn])
+
+
+@dataclass(frozen=True)
+class PixelSampler:
+    """Chooses pixels with valid depth; ``cfg.dynamic_share`` of them from dynamic (masked) pixels.
+
+    ``dynamic_share = 0`` is the ``uniform`` sampler; ``mask_weighted`` over-samples moving objects so
+    the field learns them from the few pixels they cover. Without a mask (or with no dynamic pixel
+    in view) every ray is drawn uniformly.
+    """
+
+    cfg: SamplerConfig = SamplerConfig(name="uniform", dynamic_share=0.0)
+
+    @property
+    def dynamic_share(self) -> float:
+        return self.cfg.dynamic_share
+
+    def __call__(self, pool: PixelPool, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        """-> (n,) flat pixel indices (empty only when the frame has no valid pixel)."""
+        if self.dynamic_share > 0 and pool.dynamic.numel() > 0 and pool.static.numel() > 0:
+            n_dyn = int(round(n * self.dynamic_share))
+            return torch.cat([draw(pool.dynamic, n_dyn, generator), draw(pool.static, n - n_dyn, generator)])
+        return draw(pool.valid, n, generator)
+
+
+def depth_guided_depths(
+    depth: torch.Tensor,
+    truncation: float,
+    n_band: int,
+    n_free: int,
+    band: float = 2.0,
+    near: float = 0.05,
+    stratified: bool = True,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """Sample z-depths along rays around the observed depth.
+
+    ``n_band`` stratified samples in [D - band*tr, D + band*tr] plus ``n_free`` stratified samples in
+    free space [near, D - band*tr] (empty when the band reaches the near plane: then all free
+    samples collapse onto ``near`` and are cheap invalid points).
+
+    Args:
+        depth: (N,) observed z-depth, all > 0.
+    Returns:
+        (N, n_free + n_band) ascending z values.
+    """
+    n = depth.shape[0]
+    half = band * truncation
+    lo = (depth - half).clamp_min(near)
+
+    def strata(count: int) -> torch.Tensor:
+        base = torch.arange(count, device=depth.device, dtype=depth.dtype)
+        if stratified:
+            jitter = torch.rand(n, count, generator=generator, dtype=depth.dtype).to(depth.device)
+        else:
+            jitter = torch.full((n, count), 0.5, device=depth.device, dtype=depth.dtype)
+        return (base + jitter) / count  # (N, count) in (0, 1)
+
+    band_z = lo[:, None] + (depth + half - lo)[:, None] * strata(n_band)
+    if n_free == 0:
+        return band_z
+    free_z = near + (lo - near).clamp_min(0)[:, None] * strata(n_free)
+    return torch.cat([free_z, band_z], dim=1)
+
+
+def place_samples(
+    depth: torch.Tensor, cfg: RenderConfig, stratified: bool, generator: torch.Generator | None = None
+) -> torch.Tensor:
+    """Depth-guided samples for rays with observed ``depth`` (N,) -> (N, n_free + n_band) ascending z,
+    as configured by ``cfg`` (see :func:`depth_guided_depths`)."""
+    return depth_guided_depths(depth, cfg.truncation, cfg.n_band, cfg.n_free, cfg.band, cfg.near, stratified, generator)

@@ -1,0 +1,1 @@
+"""Online SLAM: tracking, mapping, keyframes, the per-frame loop (system), checkpoints and run outputs."""

@@ -1,0 +1,91 @@
+"""Keyframe database and window-selection policies (paper Eq. 11)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from tivne.config import KeyframeConfig
+from tivne.geometry import backproject, invert_pose, project, transform_points
+from tivne.render.rays import View
+from tivne.render.samplers import sample_from_mask
+
+
+class KeyframeDatabase:
+    """Keyframes inserted every ``every`` frames (frame 0 always)."""
+
+    def __init__(self, every: int = 5) -> None:
+        self.every = int(every)
+        self.views: list[View] = []
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def should_insert(self, stream_index: int) -> bool:
+        return stream_index % self.every == 0
+
+    def add(self, view: View) -> int:
+        self.views.append(view)
+        return len(self.views) - 1
+
+    def poses(self) -> torch.Tensor:
+        """(K, 4, 4) current keyframe poses."""
+        return torch.stack([v.pose for v in self.views])
+
+    def frame_ids(self) -> list[int]:
+        return [v.frame_id for v in self.views]
+
+
+def overlap_ratios(
+    uv: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, c2w: torch.Tensor, kf_c2w: torch.Tensor, width: int, height: int
+) -> torch.Tensor:
+    """Share of the current frame's sampled pixels that reproject inside each keyframe (paper Eq. 11).
+
+    u_kf = K · T_w2c(kf) · T_c2w(cur) · K⁻¹ · u, counted when it lands inside the image with positive depth.
+
+    Args:
+        uv: (N, 2) sampled pixels of the current frame; depth: (N,) their depths (> 0).
+        K: (3, 3); c2w: (4, 4) current pose; kf_c2w: (F, 4, 4) keyframe poses.
+    Returns:
+        (F,) ratios in [0, 1].
+    """
+    world = transform_points(c2w, backproject(uv, depth, K))  # (N, 3)
+    cam = transform_points(invert_pose(kf_c2w)[:, None], world[None])  # (F, N, 3)
+    uv_kf, z = project(cam, K)
+    inside = (z > 0) & (uv_kf[..., 0] >= 0) & (uv_kf[..., 0] <= width - 1) & (uv_kf[..., 1] >= 0) & (uv_kf[..., 1] <= height - 1)
+    return inside.float().mean(dim=1)
+
+
+@dataclass(frozen=True)
+class KeyframePolicy:
+    """Picks up to ``cfg.window`` keyframes for a mapping round.
+
+    ``overlap``: the lowest reprojection overlap with the current frame among keyframes that overlap
+    it at all (ratio > ``min_overlap``), so the window covers the most novel views that still see
+    part of the current scene; ``random``: uniformly at random (Vox-Fusion).
+    """
+
+    cfg: KeyframeConfig = KeyframeConfig()
+
+    def select(
+        self, db: KeyframeDatabase, current: View, K: torch.Tensor, generator: torch.Generator | None = None
+    ) -> list[int]:
+        """Indices into ``db`` (excluding a keyframe that *is* the current frame)."""
+        candidates = [i for i, v in enumerate(db.views) if v.frame_id != current.frame_id]
+        if len(candidates) <= self.cfg.window:
+            return candidates
+        if self.cfg.policy == "random":
+            perm = torch.randperm(len(candidates), generator=generator)[: self.cfg.window]
+            return sorted(candidates[i] for i in perm.tolist())
+        idx = sample_from_mask(current.depth > 0, self.cfg.overlap_pixels, generator)
+        if idx.numel() == 0:
+            return candidates[-self.cfg.window :]
+        h, w = current.depth.shape
+        uv = torch.stack([idx % w, idx // w], dim=-1).to(current.depth.dtype)
+        ratios = overlap_ratios(uv, current.depth.reshape(-1)[idx], K, current.pose, db.poses()[candidates], w, h)
+        order = torch.argsort(ratios)
+        picked = [candidates[i] for i in order.tolist() if ratios[i] > self.cfg.min_overlap][: self.cfg.window]
+        if not picked:  # nothing overlaps (e.g. tracking lost): fall back to the latest keyframes
+            picked = candidates[-self.cfg.window :]
+        return sorted(picked)

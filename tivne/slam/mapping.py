@@ -1,0 +1,125 @@
+"""Mapping: joint optimisation of E, Θd, Θs and the window's poses over current frame + keyframes,
+and the final pass over every keyframe after the sequence."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+from tivne.config import LossWeights, MappingConfig, RenderConfig
+from tivne.field.networks import TimeVaryingField
+from tivne.geometry import orthonormalize_pose, se3_exp
+from tivne.render.losses import slam_loss
+from tivne.render.rays import View
+from tivne.render.renderer import render_pixels
+from tivne.render.samplers import PixelPool, PixelSampler
+
+
+class Mapper:
+    """Owns the map optimiser (persistent Adam over E and both MLPs, per-group learning rates)."""
+
+    def __init__(self, field: TimeVaryingField, cfg: MappingConfig) -> None:
+        self.field = field
+        self.cfg = cfg
+        decoder = [p for n, p in field.named_parameters() if not n.startswith("grid.")]
+        self.optimizer = torch.optim.Adam(
+            [{"params": [field.grid.embeddings], "lr": cfg.lr_embeddings}, {"params": decoder, "lr": cfg.lr_decoder}]
+        )
+        field.grid.grow_callbacks.append(self._pad_embedding_state)
+
+    def _pad_embedding_state(self, old_rows: int, new_rows: int) -> None:
+        """Keep Adam's moments aligned with E after the grid grows (new rows start from zero moments)."""
+        state = self.optimizer.state.get(self.field.grid.embeddings)
+        if not state:
+            return
+        for key in ("exp_avg", "exp_avg_sq"):
+            moment = state[key]
+            state[key] = torch.cat([moment, moment.new_zeros(new_rows - old_rows, moment.shape[1])])
+
+    def run(
+        self,
+        views: list[View],
+        fixed: list[bool],
+        iters: int,
+        K: torch.Tensor,
+        sampler: PixelSampler,
+        render: RenderConfig,
+        weights: LossWeights,
+        generator: torch.Generator | None = None,
+        current_share: float | None = None,
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """Optimise the map on ``views`` (views[0] is the current frame, with ``current_share`` of
+        the rays; default the config's).
+
+        Returns the refined (V, 4, 4) poses (unchanged where ``fixed``) and the last step's loss terms.
+        """
+        cfg = self.cfg
+        base = torch.stack([v.pose.detach() for v in views])
+        movable = torch.tensor([not f for f in fixed], device=base.device, dtype=base.dtype)[:, None]
+        pose_delta = torch.zeros(len(views), 6, device=base.device, dtype=base.dtype, requires_grad=cfg.optimize_poses)
+        pose_opt = torch.optim.Adam([pose_delta], lr=cfg.lr_pose) if cfg.optimize_poses and movable.any() else None
+        pools = [PixelPool.from_masks(v.depth > 0, v.dynamic) for v in views]
+        share = cfg.current_share if current_share is None else current_share
+        n_cur = cfg.rays if len(views) == 1 else int(cfg.rays * share)
+        n_other = (cfg.rays - n_cur) // max(len(views) - 1, 1)
+        counts = [n_cur] + [n_other] * (len(views) - 1)
+        terms: dict[str, torch.Tensor] = {}
+        skipped = 0
+        for _ in range(iters):
+            poses = base @ se3_exp(pose_delta * movable) if pose_opt is not None else base
+            pixels = [sampler(pool, n, generator) for pool, n in zip(pools, counts)]
+            batch = render_pixels(self.field, views, pixels, poses, K, render, True, generator)
+            loss, terms = slam_loss(batch, render.truncation, weights)
+            if not torch.isfinite(loss) or not loss.requires_grad:  # never step the map on a broken batch
+                skipped += 1
+                continue
+            self.optimizer.zero_grad(set_to_none=True)
+            if pose_opt is not None:
+                pose_opt.zero_grad(set_to_none=True)
+            loss.backward()
+            if not all(torch.isfinite(p.grad).all() for g in self.optimizer.param_groups for p in g["params"] if p.grad is not None):
+                skipped += 1
+                continue
+            self.optimizer.step()
+            if pose_opt is not None:
+                pose_opt.step()
+        with torch.no_grad():
+            final = base @ se3_exp(pose_delta * movable) if pose_opt is not None else base
+        stats = {k: float(v) for k, v in terms.items()}
+        stats["skipped_steps"] = float(skipped)
+        return orthonormalize_pose(final.detach()), stats
+
+
+def final_pass(
+    mapper: Mapper,
+    views: Sequence[View],
+    K: torch.Tensor,
+    sampler: PixelSampler,
+    render: RenderConfig,
+    weights: LossWeights,
+    generator: torch.Generator | None = None,
+) -> dict[str, float]:
+    """The last pass over the whole sequence (Co-SLAM's final global BA, poses fixed).
+
+    ``mapping.final_iters`` steps in rounds of ``mapping.iters``, each over a window of
+    ``mapping.final_window`` views drawn without replacement from a shuffled cycle, so every time is
+    revisited about equally often. Returns the last round's loss terms.
+    """
+    cfg = mapper.cfg
+    if cfg.final_iters <= 0 or not views:
+        return {}
+    window = max(1, min(cfg.final_window, len(views)))
+    order: list[int] = []
+    done, terms = 0, {}
+    while done < cfg.final_iters:
+        if len(order) < window:  # next cycle; the last cycle's leftovers go first, no repeats in a window
+            order += [i for i in torch.randperm(len(views), generator=generator).tolist() if i not in order]
+        picked, order = order[:window], order[window:]
+        iters = max(1, min(cfg.iters, cfg.final_iters - done))
+        _, terms = mapper.run(
+            [views[i] for i in picked], [True] * window, iters, K, sampler, render, weights, generator,
+            current_share=1.0 / window,
+        )
+        done += iters
+    return terms

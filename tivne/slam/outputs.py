@@ -1,0 +1,146 @@
+"""The run directory: every path of a run's results and every writer, in one place.
+
+    run_dir/
+      .hydra/                    the composed config (written by Hydra)
+      trajectory.txt             TUM format, rewritten every ``output.save_every`` frames
+      metrics.json               flat snake_case keys with units (merged, never truncated)
+      checkpoints/slam.pt        the field, its construction arguments and the trajectory
+      meshes/mesh_t<t>.ply       meshes at chosen timestamps (seconds, 3 decimals)
+      renders/frame<k>_<x>.png   rendered vs observed images
+      tb/                        TensorBoard events
+
+Every write is atomic (:func:`data_modules.io.atomic_write`): a reader sees the old file or the
+new one, and a failed write leaves neither half a file nor a temporary behind.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from data_modules.io import atomic_write
+from tivne.geometry import write_tum_trajectory
+
+
+def jsonable(value: Any) -> Any:
+    """numpy scalars -> python; NaN / inf -> None (JSON has neither)."""
+    if isinstance(value, (np.floating, np.integer, np.bool_)):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+class RunDir:
+    """Paths and writers of one run directory (see the module docstring for the layout)."""
+
+    TRAJECTORY = "trajectory.txt"
+    METRICS = "metrics.json"
+    CHECKPOINT = "checkpoints/slam.pt"
+    MESHES = "meshes"
+    RENDERS = "renders"
+    TENSORBOARD = "tb"
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+
+    @property
+    def trajectory(self) -> Path:
+        return self.root / self.TRAJECTORY
+
+    @property
+    def metrics(self) -> Path:
+        return self.root / self.METRICS
+
+    @property
+    def checkpoint(self) -> Path:
+        return self.root / self.CHECKPOINT
+
+    @property
+    def config(self) -> Path:
+        return self.root / ".hydra" / "config.yaml"
+
+    def mesh_path(self, timestamp: float) -> Path:
+        """meshes/mesh_t{t:.3f}.ply for a mesh at ``timestamp`` seconds."""
+        return self.root / self.MESHES / f"mesh_t{timestamp:.3f}.ply"
+
+    def render_path(self, frame_id: int, name: str) -> Path:
+        return self.root / self.RENDERS / f"frame{frame_id:05d}_{name}.png"
+
+    # ---- writers -------------------------------------------------------------------------------
+    def write_trajectory(self, timestamps: list[float], poses: torch.Tensor) -> Path:
+        """(N,) seconds and (N, 4, 4) c2w poses -> trajectory.txt."""
+        write_tum_trajectory(self.trajectory, timestamps, poses)
+        return self.trajectory
+
+    def read_metrics(self) -> dict[str, Any]:
+        """metrics.json's content ({} when absent). An unreadable file is moved aside to
+        ``metrics.json.corrupt`` (with a warning) rather than lost or overwritten."""
+        path = self.metrics
+        if not path.is_file():
+            return {}
+        try:
+            current = json.loads(path.read_text())
+            if not isinstance(current, dict):
+                raise ValueError("not a JSON object")
+            return current
+        except ValueError:
+            path.replace(path.with_name(path.name + ".corrupt"))
+            print(f"warning: {path}: not a JSON object; kept as {path.name}.corrupt", file=sys.stderr)
+            return {}
+
+    def merge_metrics(self, metrics: dict[str, Any]) -> dict[str, Any]:
+        """Merge ``metrics`` into metrics.json and return the merged content.
+
+        Keys not in ``metrics`` are kept, except a stale ``<stem>_reason`` whose metrics ``<stem>_*``
+        are now computed. Values go through :func:`jsonable` (NaN -> null).
+        """
+        current = self.read_metrics()
+        metrics = {k: jsonable(v) for k, v in metrics.items()}
+        computed = [k for k, v in metrics.items() if v is not None and not k.endswith("_reason")]
+        for key in [k for k in current if k.endswith("_reason") and k not in metrics]:
+            stem = key[: -len("reason")]
+            if any(k.startswith(stem) for k in computed):
+                del current[key]
+        current.update(metrics)
+        atomic_write(self.metrics, json.dumps(current, indent=2, sort_keys=True) + "\n")
+        return current
+
+    def write_image(self, path: Path, rgb: np.ndarray) -> Path:
+        """(H, W, 3) uint8 RGB -> PNG at ``path``."""
+        import cv2
+
+        ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
+        if not ok:
+            raise OSError(f"{path}: could not encode the image")
+        return atomic_write(path, buf.tobytes())
+
+
+def image_panels(rgb: torch.Tensor, depth: torch.Tensor, rgb_obs: torch.Tensor, depth_obs: torch.Tensor) -> dict[str, np.ndarray]:
+    """Side-by-side observed | rendered panels as (H, 2W, 3) uint8 images, plus |depth error|.
+
+    Args:
+        rgb, depth: rendered (H, W, 3), (H, W); rgb_obs, depth_obs: observed, same sizes.
+    Returns:
+        {"rgb", "depth" (scaled to the observed maximum), "depth_error" (5 cm = white)}.
+    """
+    dmax = float(depth_obs.max().clamp_min(1e-3))
+    err = (depth - depth_obs).abs() * (depth_obs > 0)
+
+    def to8(x: torch.Tensor) -> np.ndarray:
+        return (x.clamp(0, 1) * 255).byte().cpu().numpy()
+
+    def gray(x: torch.Tensor) -> torch.Tensor:
+        return x[..., None].expand(*x.shape, 3)
+
+    return {
+        "rgb": to8(torch.cat([rgb_obs, rgb], dim=1)),
+        "depth": to8(gray(torch.cat([depth_obs, depth], dim=1) / dmax)),
+        "depth_error": to8(gray(err / 0.05)),
+    }

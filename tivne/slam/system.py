@@ -1,0 +1,273 @@
+"""TivNeSLAM: the LightningModule whose ``training_step`` is the per-frame loop
+masks -> track -> keyframe -> map -> allocate; everything it writes goes through :class:`RunDir`."""
+
+from __future__ import annotations
+
+import math
+import resource
+import time
+from dataclasses import dataclass, field as dc_field
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import torch
+
+from data_modules.frame import Frame, Intrinsics
+from tivne.config import FieldConfig, LossWeights, MappingConfig, MeshConfig, OutputConfig, RenderConfig, TrackingConfig
+from tivne.field.networks import TimeVaryingField, time_to_tau
+from tivne.geometry import backproject
+from tivne.masks.base import MaskContext, MaskProvider, NoMasks
+from tivne.meshing import extract_mesh, save_mesh
+from tivne.render.rays import View
+from tivne.render.renderer import render_image
+from tivne.render.samplers import PixelSampler
+from tivne.slam.checkpoint import save_checkpoint
+from tivne.slam.keyframes import KeyframeDatabase, KeyframePolicy
+from tivne.slam.mapping import Mapper, final_pass
+from tivne.slam.outputs import RunDir, image_panels
+from tivne.slam.tracking import frozen, predict_pose, track_frame
+from tivne.slam.trajectory import Trajectory
+
+
+@dataclass
+class Timers:
+    """Where the run's time went (seconds), for metrics.json."""
+
+    track_s: float = 0.0
+    track_iters: int = 0
+    map_s: float = 0.0
+    map_iters: int = 0
+    refine_s: float = 0.0
+    per_frame: list[float] = dc_field(default_factory=list)
+
+
+class TivNeSLAM(L.LightningModule):
+    """Online dynamic RGB-D SLAM over a stream of :class:`Frame` (batch size 1, time order)."""
+
+    def __init__(
+        self,
+        field_cfg: FieldConfig,
+        intrinsics: Intrinsics,
+        sampler: PixelSampler,
+        keyframes: KeyframePolicy,
+        masks: MaskProvider | None,
+        render: RenderConfig,
+        loss: LossWeights,
+        tracking: TrackingConfig,
+        mapping: MappingConfig,
+        mesh: MeshConfig,
+        output: OutputConfig,
+        run_dir: str | Path,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        self.automatic_optimization = False
+        self.field_cfg = field_cfg
+        self.field = TimeVaryingField(**field_cfg.field_kwargs())
+        self.intrinsics = intrinsics
+        self.sampler = sampler
+        self.keyframe_policy = keyframes
+        self.masks = masks or NoMasks()
+        self.render_cfg, self.loss_weights = render, loss
+        self.tracking_cfg, self.mapping_cfg = tracking, mapping
+        self.mesh_cfg, self.output_cfg = mesh, output
+        self.run = RunDir(run_dir)
+        self.mapper = Mapper(self.field, mapping)
+        self.db = KeyframeDatabase(keyframes.cfg.every)
+        self.trajectory = Trajectory()
+        self.tracked: list[torch.Tensor] = []  # the last two absolute poses, for the motion model
+        self.t0: float | None = None
+        self.last_mapped_tau = 0.0
+        self.last_view: View | None = None
+        self.timers = Timers()
+        self.generator = torch.Generator().manual_seed(seed)
+        self.last_metrics: dict[str, Any] = {}
+
+    # ---- Lightning plumbing -------------------------------------------------------------------
+    def configure_optimizers(self):
+        return self.mapper.optimizer  # registered so Lightning knows the map's optimiser
+
+    def transfer_batch_to_device(self, batch: Frame, device, dataloader_idx: int) -> Frame:
+        return batch.to(device)
+
+    @property
+    def K(self) -> torch.Tensor:
+        return self.intrinsics.K(device=self.device)
+
+    # ---- the per-frame loop -------------------------------------------------------------------
+    def training_step(self, frame: Frame, batch_idx: int) -> None:
+        start = time.perf_counter()
+        k = len(self.trajectory)
+        if self.t0 is None:
+            self.t0 = float(frame.timestamp)
+        tau = time_to_tau(frame.timestamp, self.t0, self.field.time_scale)
+        # Post-tracking providers lend tracking a prediction (their previous mask) meanwhile.
+        mask = self.masks.predict(frame) if self.masks.needs_tracked_pose else self.masks(frame, None)
+        pose, stats = self._track(k, tau, frame, mask)
+        if self.masks.needs_tracked_pose:
+            with frozen(self.field), torch.no_grad():
+                context = MaskContext(self.field, pose, self.K, tau, self.render_cfg, k, self.last_mapped_tau)
+                mask = self.masks(frame, context)
+        view = View(k, tau, frame.rgb, frame.depth, mask, pose)
+        self.masks.revise(self.db.views, view, self.K)  # what this frame shows about earlier keyframes
+        if k == 0:
+            self._allocate(view)
+        if self.db.should_insert(k):
+            self.db.add(view)
+        if k == 0 or k % self.mapping_cfg.every == 0:
+            stats.update(self._map(view, first=k == 0))
+            self.last_mapped_tau = tau
+        self._allocate(view)
+        self.trajectory.append(frame.timestamp, view.pose, len(self.db) - 1, self.db.views[-1].pose, frame.gt_pose)
+        self.tracked = (self.tracked + [view.pose.detach()])[-2:]
+        self.last_view = view
+        elapsed = time.perf_counter() - start
+        self.timers.per_frame.append(elapsed)
+        self._log_frame(k, view, stats, elapsed)
+        if self.output_cfg.save_every and (k + 1) % self.output_cfg.save_every == 0:
+            self.write_trajectory()
+
+    def _track(self, k: int, tau: float, frame: Frame, mask: torch.Tensor | None) -> tuple[torch.Tensor, dict[str, float]]:
+        """The frame's c2w pose: the first camera defines the SLAM world frame; later ones are tracked."""
+        if k == 0:
+            return torch.eye(4, device=self.device), {}
+        init = predict_pose(self.tracked, self.tracking_cfg.motion_model)
+        query_tau = self.last_mapped_tau if self.tracking_cfg.query_time == "last_mapped" else tau
+        t = time.perf_counter()
+        pose, stats = track_frame(
+            self.field, View(k, query_tau, frame.rgb, frame.depth, mask, init), self.K, self.render_cfg,
+            self.loss_weights, self.tracking_cfg, self.generator,
+        )
+        self.timers.track_s += time.perf_counter() - t
+        self.timers.track_iters += self.tracking_cfg.iters
+        return pose, {f"track/{n}": v for n, v in stats.items()}
+
+    def _map(self, view: View, first: bool) -> dict[str, float]:
+        if first:
+            views, fixed, iters = [view], [True], self.mapping_cfg.first_iters
+        else:
+            picked = self.keyframe_policy.select(self.db, view, self.K, self.generator)
+            views = [view] + [self.db.views[i] for i in picked]
+            fixed = [False] + [self.db.views[i].frame_id == 0 for i in picked]
+            iters = self.mapping_cfg.iters
+        t = time.perf_counter()
+        poses, terms = self.mapper.run(views, fixed, iters, self.K, self.sampler, self.render_cfg, self.loss_weights, self.generator)
+        self.timers.map_s += time.perf_counter() - t
+        self.timers.map_iters += iters
+        for v, p in zip(views, poses):
+            v.pose = p
+        return {f"map/loss_{n}" if n != "total" else "map/loss": v for n, v in terms.items()} | {"map/window": float(len(views))}
+
+    @torch.no_grad()
+    def _allocate(self, view: View) -> None:
+        """Allocate voxels where the frame's depth (every ``allocation_stride``-th pixel) lands."""
+        s = self.output_cfg.allocation_stride
+        depth = view.depth[::s, ::s]
+        h, w = depth.shape
+        v, u = torch.meshgrid(torch.arange(h, device=self.device) * s, torch.arange(w, device=self.device) * s, indexing="ij")
+        valid = depth > 0
+        cam = backproject(torch.stack([u[valid], v[valid]], dim=-1).float(), depth[valid], self.K)
+        world = (view.pose[:3, :3] @ cam.T).T + view.pose[:3, 3]
+        dynamic = None if view.dynamic is None else view.dynamic[::s, ::s][valid]
+        self.field.grid.allocate(world, dilation=self.field.allocation_dilation, dynamic=dynamic, tau=view.tau)
+
+    def _log_frame(self, k: int, view: View, stats: dict[str, float], elapsed: float) -> None:
+        """Per-frame scalars (against the frame index) and every ``image_every`` frames the renders."""
+        stats = dict(stats, **{"perf/s_per_frame": elapsed, "map/voxels": float(self.field.grid.num_voxels)})
+        result = self.trajectory.ate(self.keyframe_poses()) if k % 10 == 0 else None
+        if result is not None:
+            stats["eval/ate_rmse_m"] = float(result.rmse)
+        logger = getattr(self.logger, "experiment", None) if self.logger is not None else None
+        if logger is not None and hasattr(logger, "add_scalar"):
+            for name, value in stats.items():
+                if value is not None and math.isfinite(value):
+                    logger.add_scalar(name, value, k)
+            every = self.output_cfg.image_every
+            if every and k % every == 0:
+                for name, img in self.render_panels(view, stride=2).items():
+                    logger.add_image(f"render/{name}", img, k, dataformats="HWC")
+        self.log("fps", 1.0 / max(elapsed, 1e-6), prog_bar=True, on_step=True, batch_size=1)
+        if "eval/ate_rmse_m" in stats:
+            self.log("ate_cm", 100 * stats["eval/ate_rmse_m"], prog_bar=True, on_step=True, batch_size=1)
+
+    def render_panels(self, view: View, stride: int = 1) -> dict:
+        """Observed | rendered colour and depth, and |depth error| at ``view.pose`` (uint8 images)."""
+        with frozen(self.field):
+            rgb, depth = render_image(self.field, view, self.K, self.render_cfg, stride)
+        return image_panels(rgb, depth, view.rgb[::stride, ::stride], view.depth[::stride, ::stride])
+
+    # ---- results --------------------------------------------------------------------------------
+    def keyframe_poses(self) -> list[torch.Tensor]:
+        return [v.pose for v in self.db.views]
+
+    def poses(self) -> torch.Tensor:
+        """(N, 4, 4) float64 c2w poses of every processed frame, with keyframe refinements applied."""
+        return self.trajectory.poses(self.keyframe_poses())
+
+    def write_trajectory(self) -> Path:
+        return self.run.write_trajectory(self.trajectory.timestamps(), self.poses())
+
+    def on_train_end(self) -> None:
+        if not len(self.trajectory):
+            return
+        self.write_trajectory()  # before the final pass: an interrupted pass keeps the poses
+        views = list(self.db.views)
+        if self.last_view is not None and (not views or views[-1] is not self.last_view):
+            views.append(self.last_view)
+        start = time.perf_counter()
+        final_pass(self.mapper, views, self.K, self.sampler, self.render_cfg, self.loss_weights, self.generator)
+        self.timers.refine_s = time.perf_counter() - start
+        self.finalize()
+
+    def finalize(self) -> dict[str, Any]:
+        """Write trajectory.txt, the checkpoint, renders, meshes and metrics.json into the run dir."""
+        self.write_trajectory()
+        save_checkpoint(
+            self.run.checkpoint, self.field, self.field_cfg.field_kwargs(), self.trajectory.timestamps(),
+            self.poses(), self.t0, extra={"keyframes": self.db.frame_ids()},
+        )
+        for view in (self.db.views[0], self.db.views[-1]):
+            for name, img in self.render_panels(view, stride=2).items():
+                self.run.write_image(self.run.render_path(view.frame_id, name), img)
+        metrics = self.run_metrics() | self._write_meshes()
+        self.last_metrics = self.run.merge_metrics(metrics)
+        return self.last_metrics
+
+    def run_metrics(self) -> dict[str, Any]:
+        """Speed, memory, map size and ATE of the run so far (metrics.json keys)."""
+        t = self.timers
+        per_frame = t.per_frame
+        metrics: dict[str, Any] = {
+            "frames": len(per_frame),
+            "wall_s": float(sum(per_frame)),
+            "s_per_frame": float(sum(per_frame) / len(per_frame)) if per_frame else None,
+            "s_per_frame_after_first": float(sum(per_frame[1:]) / (len(per_frame) - 1)) if len(per_frame) > 1 else None,
+            "track_ms_per_iter": 1000 * t.track_s / t.track_iters if t.track_iters else None,
+            "map_ms_per_iter": 1000 * t.map_s / t.map_iters if t.map_iters else None,
+            "final_refine_s": t.refine_s,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+            "voxels": self.field.grid.num_voxels,
+            "embedding_rows": self.field.grid.num_corners,
+            "keyframes": len(self.db),
+            "checkpoint": RunDir.CHECKPOINT,
+        }
+        result = self.trajectory.ate(self.keyframe_poses())
+        if result is not None:
+            metrics.update(result.as_metrics())
+            metrics["ate_frames"] = int(result.num_poses)
+        else:
+            metrics.update({"ate_rmse_m": None, "ate_reason": "fewer than 3 frames have ground-truth poses"})
+        return metrics
+
+    def _write_meshes(self) -> dict[str, Any]:
+        stamps = self.trajectory.timestamps()
+        times = list(self.mesh_cfg.times) or [stamps[0], stamps[-1]]
+        centres = self.poses()[:, :3, 3].numpy()
+        result: dict[str, Any] = {}
+        for ts in times:
+            tau = time_to_tau(ts, self.t0, self.field.time_scale)
+            mesh = extract_mesh(self.field, tau, self.mesh_cfg.resolution, culling=self.mesh_cfg, camera_centres=centres)
+            save_mesh(mesh, self.run.mesh_path(ts))
+            result[f"mesh_t{ts:.3f}_faces"] = int(len(mesh.faces))
+        return result

@@ -1,0 +1,55 @@
+"""Pose bookkeeping of a run: every processed frame's pose, kept relative to a keyframe so that
+refining the keyframe moves the frames tracked from it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from tivne.geometry import invert_pose, orthonormalize_pose
+from tivne.metrics.trajectory import ATEResult, absolute_trajectory_error
+
+
+@dataclass
+class FrameRecord:
+    """Where a processed frame's pose lives: ``keyframe`` (an index into the keyframe list) and the
+    (4, 4) pose relative to it; ``gt_pose`` (4, 4) c2w or None."""
+
+    timestamp: float
+    keyframe: int
+    relative: torch.Tensor
+    gt_pose: torch.Tensor | None
+
+
+class Trajectory:
+    """The processed frames' poses (c2w, SLAM world frame) and their ground truth where known."""
+
+    def __init__(self) -> None:
+        self.records: list[FrameRecord] = []
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def append(self, timestamp: float, pose: torch.Tensor, keyframe: int, keyframe_pose: torch.Tensor, gt_pose: torch.Tensor | None) -> None:
+        """Record a frame's (4, 4) c2w ``pose`` relative to keyframe ``keyframe`` (at ``keyframe_pose``)."""
+        rel = orthonormalize_pose(invert_pose(keyframe_pose) @ pose)
+        self.records.append(FrameRecord(float(timestamp), int(keyframe), rel.detach(), gt_pose))
+
+    def poses(self, keyframe_poses: list[torch.Tensor]) -> torch.Tensor:
+        """(N, 4, 4) float64 c2w poses of every frame, with the keyframes' current poses applied."""
+        if not self.records:
+            return torch.zeros(0, 4, 4, dtype=torch.float64)
+        return torch.stack([keyframe_poses[r.keyframe] @ r.relative for r in self.records]).detach().cpu().double()
+
+    def timestamps(self) -> list[float]:
+        return [r.timestamp for r in self.records]
+
+    def ate(self, keyframe_poses: list[torch.Tensor]) -> ATEResult | None:
+        """SE(3)-aligned ATE over the frames that have a GT pose; None with fewer than 3 of them."""
+        keep = [i for i, r in enumerate(self.records) if r.gt_pose is not None]
+        if len(keep) < 3:
+            return None
+        est = self.poses(keyframe_poses)[keep]
+        gt = torch.stack([self.records[i].gt_pose for i in keep]).detach().cpu().double()
+        return absolute_trajectory_error(est.numpy(), gt.numpy(), align="se3")
