@@ -41,8 +41,8 @@ from data_modules.io import (
     read_table,
     require_dir,
 )
+from data_modules.poses import interpolate_poses
 from data_modules.sequence import SequenceDataset, check_monotonic_timestamps
-from data_modules.tum import interpolate_poses
 
 _RGB_EXT = (".png", ".jpg", ".jpeg")
 _TS_NAME = re.compile(r"^[0-9]+\.[0-9]+$")

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from data_modules.frame import DatasetError, Intrinsics
+from data_modules.poses import pose_from_tq
 
 # --------------------------------------------------------------------------------------- writes
 
@@ -335,8 +336,6 @@ def read_pose_table(path: str | Path, key: str = "timestamp", what: str = "traje
         DatasetError ``file:line`` for malformed lines, zero quaternions, and duplicate or
         decreasing keys.
     """
-    from tivne.geometry import pose_from_tq
-
     conv = integer if key == "frame" else finite_float
     rows = read_table(path, [(key, conv), *POSE_COLUMNS], what=what)
     keys = np.array([r.values[0] for r in rows], dtype=np.int64 if key == "frame" else np.float64)

@@ -41,8 +41,8 @@ from data_modules.io import (
     read_table,
     require_dir,
 )
+from data_modules.poses import interpolate_poses, orthonormalize_pose
 from data_modules.sequence import SequenceDataset, check_monotonic_timestamps
-from tivne.geometry import matrix_to_quat, quat_to_matrix
 
 log = logging.getLogger(__name__)
 
@@ -66,21 +66,8 @@ T_M_RAW = np.array(
     ],
     dtype=np.float64,
 )
-
-
-def project_to_rotation(T: np.ndarray) -> np.ndarray:
-    """Replace the 3x3 block of a 4x4 by its nearest rotation (SVD, det +1); keep the translation."""
-    U, _, Vt = np.linalg.svd(T[:3, :3])
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        U[:, -1] *= -1
-        R = U @ Vt
-    out = T.copy()
-    out[:3, :3] = R
-    return out
-
-
-T_M = project_to_rotation(T_M_RAW)
+# T_M_RAW's rotation block has singular values ~1.06 (a scaled rotation); use its nearest rotation.
+T_M = orthonormalize_pose(torch.from_numpy(T_M_RAW)).numpy()
 
 
 def bonn_marker_to_camera(T_gt: torch.Tensor) -> torch.Tensor:
@@ -122,61 +109,6 @@ def associate(first: np.ndarray, second: np.ndarray, max_difference: float, offs
             pairs.append((i, j))
     pairs.sort()
     return pairs
-
-
-def interpolate_poses(
-    times: np.ndarray, poses: torch.Tensor, query: np.ndarray, max_gap: float | None = None
-) -> tuple[torch.Tensor, np.ndarray]:
-    """Poses at ``query`` times: SLERP rotation + linear translation between bracketing samples.
-
-    Args:
-        times: (N,) strictly increasing sample times.
-        poses: (N, 4, 4) float64 poses at ``times``.
-        query: (M,) times to evaluate.
-        max_gap: the bracketing samples may be at most this far apart (None = any); a query equal
-            to a sample time is always valid.
-    Returns:
-        (M, 4, 4) float64 poses (identity where invalid) and (M,) bool ``valid``: False outside
-        [times[0], times[-1]] or inside a longer gap. Nothing is extrapolated.
-    """
-    times = np.asarray(times, dtype=np.float64)
-    query = np.asarray(query, dtype=np.float64)
-    poses = torch.as_tensor(poses, dtype=torch.float64)
-    m = len(query)
-    out = torch.eye(4, dtype=torch.float64).repeat(m, 1, 1)
-    valid = np.zeros(m, dtype=bool)
-    if len(times) == 0 or m == 0:
-        return out, valid
-    quats = matrix_to_quat(poses[:, :3, :3]).numpy()
-    trans = poses[:, :3, 3].numpy()
-    # exact hits first
-    j = np.searchsorted(times, query, side="left")
-    for k, (t, jj) in enumerate(zip(query, j)):
-        if jj < len(times) and times[jj] == t:
-            out[k] = poses[jj]
-            valid[k] = True
-            continue
-        if jj == 0 or jj >= len(times):
-            continue  # outside coverage
-        a, b = jj - 1, jj
-        gap = times[b] - times[a]
-        if max_gap is not None and gap > max_gap:
-            continue
-        s = (t - times[a]) / gap
-        qa, qb = quats[a], quats[b]
-        dot = float(np.dot(qa, qb))
-        if dot < 0:
-            qb, dot = -qb, -dot
-        if dot > 0.9995:
-            q = qa + s * (qb - qa)
-        else:
-            theta = np.arccos(min(dot, 1.0))
-            q = (np.sin((1 - s) * theta) * qa + np.sin(s * theta) * qb) / np.sin(theta)
-        q = q / np.linalg.norm(q)
-        out[k, :3, :3] = quat_to_matrix(torch.from_numpy(q))
-        out[k, :3, 3] = torch.from_numpy((1 - s) * trans[a] + s * trans[b])
-        valid[k] = True
-    return out, valid
 
 
 def _list_file(root: Path, name: str) -> tuple[np.ndarray, list[Path], list[int], Path]:

@@ -16,7 +16,7 @@ import numpy as np
 import OpenEXR
 import torch
 
-from tivne.geometry import matrix_to_quat
+from data_modules.poses import matrix_to_quat
 
 W, H = 32, 24
 

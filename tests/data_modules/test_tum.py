@@ -19,7 +19,6 @@ from data_modules.tum import (  # noqa: E402
     BonnSequence,
     TUMSequence,
     associate,
-    interpolate_poses,
 )
 
 T0 = 1341846313.5
@@ -122,14 +121,6 @@ def test_gt_starting_late_is_not_extrapolated(tmp_path):
     gt = [(T0 + 0.02, np.eye(4)), (T0 + 0.1, np.eye(4))]
     make_tum(tmp_path / "s", n=3, gt=gt)
     assert TUMSequence(tmp_path / "s").gt_valid.tolist() == [False, True, True]
-
-
-def test_interpolate_poses_exact_hits_and_outside():
-    P = torch.from_numpy(np.stack([random_pose(np.random.default_rng(i)) for i in range(3)]))
-    out, valid = interpolate_poses([0.0, 1.0, 2.0], P, [-0.5, 0.0, 2.0, 2.5], max_gap=0.1)
-    assert valid.tolist() == [False, True, True, False]
-    np.testing.assert_allclose(out[1].numpy(), P[0].numpy())
-    np.testing.assert_allclose(out[2].numpy(), P[2].numpy())
 
 
 def test_bonn_marker_to_camera(tmp_path):

@@ -205,48 +205,12 @@ class TestSe3ExpLog:
         assert gradcheck(G.se3_log, (T.detach().requires_grad_(),), eps=1e-6, atol=1e-5)
 
 
-class TestQuaternion:
-    def test_identity(self):
-        assert torch.allclose(G.quat_to_matrix(torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=F64)), torch.eye(3, dtype=F64))
-        assert torch.allclose(G.matrix_to_quat(torch.eye(3, dtype=F64)), torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=F64))
+class TestDataLayerReExports:
+    def test_pose_helpers_are_the_data_layer_functions(self):
+        from data_modules import poses
 
-    def test_round_trip_sign_canonicalised(self):
-        gen = torch.Generator().manual_seed(10)
-        q = torch.randn(200, 4, generator=gen, dtype=F64)
-        q = q / q.norm(dim=-1, keepdim=True)
-        assert (q[:, 3] < 0).any()
-        R = G.quat_to_matrix(q)
-        assert torch.allclose(R @ R.transpose(-1, -2), torch.eye(3, dtype=F64).expand(200, 3, 3), atol=1e-12)
-        assert torch.allclose(torch.linalg.det(R), torch.ones(200, dtype=F64))
-        q2 = G.matrix_to_quat(R)
-        assert torch.all(q2[:, 3] >= 0)
-        canonical = torch.where(q[:, 3:4] < 0, -q, q)
-        assert torch.allclose(q2, canonical, atol=1e-12)
-
-    def test_non_unit_quaternion_is_normalised(self):
-        q = torch.tensor([0.1, -0.2, 0.3, 0.9], dtype=F64)
-        assert torch.allclose(G.quat_to_matrix(7.5 * q), G.quat_to_matrix(q))
-        assert torch.allclose(G.matrix_to_quat(G.quat_to_matrix(7.5 * q)), q / q.norm(), atol=1e-12)
-
-    @pytest.mark.parametrize("eps", [0.0, 1e-9, 1e-5])
-    def test_near_180_degrees(self, eps):
-        gen = torch.Generator().manual_seed(11)
-        axis = torch.randn(50, 3, generator=gen, dtype=F64)
-        axis = axis / axis.norm(dim=-1, keepdim=True)
-        half = 0.5 * (math.pi - eps)
-        q = torch.cat([axis * math.sin(half), torch.full((50, 1), math.cos(half), dtype=F64)], -1)
-        q2 = G.matrix_to_quat(G.quat_to_matrix(q))
-        assert torch.allclose(q2.norm(dim=-1), torch.ones(50, dtype=F64))
-        # qw ~ 0: the sign is only defined up to +-; the rotation must round-trip exactly.
-        same = torch.minimum((q2 - q).norm(dim=-1), (q2 + q).norm(dim=-1))
-        assert same.max() < 1e-9
-        assert torch.allclose(G.quat_to_matrix(q2), G.quat_to_matrix(q), atol=1e-12)
-
-    def test_pose_from_tq(self):
-        T = G.pose_from_tq(torch.tensor([1.0, 2.0, 3.0], dtype=F64), torch.tensor([0.0, 0.0, 0.0, 2.0], dtype=F64))
-        expected = torch.eye(4, dtype=F64)
-        expected[:3, 3] = torch.tensor([1.0, 2.0, 3.0], dtype=F64)
-        assert torch.allclose(T, expected)
+        for name in ("quat_to_matrix", "matrix_to_quat", "pose_from_tq", "orthonormalize_pose"):
+            assert getattr(G, name) is getattr(poses, name), name
 
 
 class TestTumTrajectory:
