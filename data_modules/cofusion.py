@@ -40,7 +40,8 @@ from data_modules.io import (
     require_dir,
     sanitize_depth,
 )
-from data_modules.sequence import SequenceDataset, check_monotonic_timestamps
+from data_modules.sequence import SequenceDataset
+from data_modules.timestamps import check_monotonic_timestamps
 
 log = logging.getLogger(__name__)
 

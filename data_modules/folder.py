@@ -42,7 +42,8 @@ from data_modules.io import (
     require_dir,
 )
 from data_modules.poses import interpolate_poses
-from data_modules.sequence import SequenceDataset, check_monotonic_timestamps
+from data_modules.sequence import SequenceDataset
+from data_modules.timestamps import check_monotonic_timestamps
 
 _RGB_EXT = (".png", ".jpg", ".jpeg")
 _TS_NAME = re.compile(r"^[0-9]+\.[0-9]+$")

@@ -28,7 +28,8 @@ import torch
 
 from data_modules.frame import DatasetError, Frame, Intrinsics
 from data_modules.io import require_file
-from data_modules.sequence import SequenceDataset, check_monotonic_timestamps
+from data_modules.sequence import SequenceDataset
+from data_modules.timestamps import check_monotonic_timestamps
 
 log = logging.getLogger(__name__)
 

@@ -8,7 +8,7 @@ Layout::
     <root>/rgb/  <root>/depth/   8-bit colour and 16-bit depth PNGs (depth / 5000 = metres)
 
 Frames are the colour images that have a depth image within ``max_time_diff`` (TUM associate.py
-semantics: all pairs closer than the limit, accepted greedily by increasing difference, each image
+semantics: all pairs with |dt| <= the limit, accepted greedily by increasing difference, each image
 used once); a frame's timestamp is its colour timestamp. Ground truth is interpolated at the frame
 timestamps (SLERP rotation, linear translation) between the two bracketing GT poses; frames before
 the first / after the last GT pose or inside a GT gap longer than ``gt_max_gap`` get ``gt_pose=None``
@@ -42,7 +42,8 @@ from data_modules.io import (
     require_dir,
 )
 from data_modules.poses import interpolate_poses, orthonormalize_pose
-from data_modules.sequence import SequenceDataset, check_monotonic_timestamps
+from data_modules.sequence import SequenceDataset
+from data_modules.timestamps import associate_by_timestamp, check_monotonic_timestamps
 
 log = logging.getLogger(__name__)
 
@@ -78,37 +79,6 @@ def bonn_marker_to_camera(T_gt: torch.Tensor) -> torch.Tensor:
     ros = torch.as_tensor(T_ROS, dtype=T_gt.dtype)
     tm = torch.as_tensor(T_M, dtype=T_gt.dtype)
     return ros @ T_gt @ ros @ tm
-
-
-def associate(first: np.ndarray, second: np.ndarray, max_difference: float, offset: float = 0.0) -> list[tuple[int, int]]:
-    """TUM ``associate.py``: pairs (i, j) with |first[i] - (second[j] + offset)| < max_difference.
-
-    Candidates are accepted greedily by increasing difference, each index at most once; the
-    result is sorted by ``i``.
-    """
-    first = np.asarray(first, dtype=np.float64)
-    second = np.asarray(second, dtype=np.float64) + offset
-    order = np.argsort(second, kind="stable")
-    s_sorted = second[order]
-    cands = []
-    for i, a in enumerate(first):
-        lo = np.searchsorted(s_sorted, a - max_difference, side="left")
-        hi = np.searchsorted(s_sorted, a + max_difference, side="right")
-        for k in range(lo, hi):
-            diff = abs(a - s_sorted[k])
-            if diff < max_difference:
-                cands.append((diff, i, int(order[k])))
-    cands.sort()
-    used_a: set[int] = set()
-    used_b: set[int] = set()
-    pairs = []
-    for _, i, j in cands:
-        if i not in used_a and j not in used_b:
-            used_a.add(i)
-            used_b.add(j)
-            pairs.append((i, j))
-    pairs.sort()
-    return pairs
 
 
 def _list_file(root: Path, name: str) -> tuple[np.ndarray, list[Path], list[int], Path]:
@@ -179,21 +149,21 @@ class TUMSequence(SequenceDataset):
 
         rgb_ts, rgb_files, rgb_lines, rgb_list = _list_file(self.root, "rgb.txt")
         depth_ts, depth_files, depth_lines, depth_list = _list_file(self.root, "depth.txt")
-        pairs = associate(rgb_ts, depth_ts, max_time_diff)
-        if not pairs:
+        rgb_idx, depth_idx = associate_by_timestamp(rgb_ts, depth_ts, max_time_diff)
+        if not len(rgb_idx):
             raise DatasetError(rgb_list, f"no colour image has a depth image within {max_time_diff} s in depth.txt")
-        self.dropped_rgb = len(rgb_ts) - len(pairs)
+        self.dropped_rgb = len(rgb_ts) - len(rgb_idx)
         if self.dropped_rgb:
             log.info("%s: %d colour images without depth within %.3f s skipped", self.root, self.dropped_rgb, max_time_diff)
-        self.rgb_paths = [rgb_files[i] for i, _ in pairs]
-        self.depth_paths = [depth_files[j] for _, j in pairs]
-        for (i, j) in pairs:
+        self.rgb_paths = [rgb_files[i] for i in rgb_idx]
+        self.depth_paths = [depth_files[j] for j in depth_idx]
+        for i, j in zip(rgb_idx, depth_idx):
             if not rgb_files[i].is_file():
                 raise DatasetError(rgb_files[i], f"missing (listed in {rgb_list.name}:{rgb_lines[i]})")
             if not depth_files[j].is_file():
                 raise DatasetError(depth_files[j], f"missing (listed in {depth_list.name}:{depth_lines[j]})")
-        self.timestamps = check_monotonic_timestamps([rgb_ts[i] for i, _ in pairs], str(rgb_list))
-        self.depth_timestamps = np.array([depth_ts[j] for _, j in pairs], dtype=np.float64)
+        self.timestamps = check_monotonic_timestamps(rgb_ts[rgb_idx], str(rgb_list))
+        self.depth_timestamps = depth_ts[depth_idx]
 
         if width is None or height is None:
             h, w = read_rgb(self.rgb_paths[0]).shape[:2]

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from data_modules.frame import DatasetError, Frame, Intrinsics
-from data_modules.sequence import SequenceDataModule, SequenceDataset, SequenceView, check_monotonic_timestamps
+from data_modules.sequence import SequenceDataModule, SequenceDataset, SequenceView
 
 
 class _Ramp(SequenceDataset):
@@ -90,18 +90,6 @@ def test_intrinsics_checks_and_resize():
     assert K.resized(640, 480) == K
     assert torch.equal(K.K(), torch.tensor([[500.0, 0, 319.5], [0, 400.0, 239.5], [0, 0, 1]]))
     assert K.as_dict()["width"] == 640
-
-
-def test_check_monotonic_timestamps():
-    assert check_monotonic_timestamps([0.0, 0.1, 0.3], "t").dtype == np.float64
-    with pytest.raises(DatasetError, match="not strictly increasing at entry 2"):
-        check_monotonic_timestamps([0.0, 0.1, 0.1], "assoc.txt")
-    with pytest.raises(DatasetError, match="not strictly increasing"):
-        check_monotonic_timestamps([0.0, 0.2, 0.1], "assoc.txt")
-    with pytest.raises(DatasetError, match="not finite"):
-        check_monotonic_timestamps([0.0, float("nan")], "assoc.txt")
-    with pytest.raises(DatasetError, match="1-D"):
-        check_monotonic_timestamps([[0.0, 1.0]], "assoc.txt")
 
 
 def test_view_stride_and_max_frames():

@@ -18,7 +18,6 @@ from data_modules.tum import (  # noqa: E402
     T_ROS,
     BonnSequence,
     TUMSequence,
-    associate,
 )
 
 T0 = 1341846313.5
@@ -57,13 +56,6 @@ def test_max_time_diff_configurable(tmp_path):
     make_tum(tmp_path / "s", n=4)
     assert len(TUMSequence(tmp_path / "s", max_time_diff=0.6)) == 4
     assert len(TUMSequence(tmp_path / "s", max_time_diff=0.012)) == 2
-
-
-def test_associate_is_greedy_and_unique():
-    a = np.array([0.0, 0.01, 0.1])
-    b = np.array([0.008, 0.5])
-    assert associate(a, b, 0.02) == [(1, 0)]  # 0.01 is closer to 0.008 than 0.0 is
-    assert associate([0.0, 1.0], [0.015, 0.99], 0.02) == [(0, 0), (1, 1)]
 
 
 def test_camera_presets_and_overrides(tmp_path):
