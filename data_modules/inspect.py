@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from data_modules.frame import DatasetError
+from data_modules.io import write_tum_trajectory
 from data_modules.sequence import SequenceDataset, SequenceView
 
 EXIT_BAD_INPUT = 2
@@ -207,8 +208,6 @@ def run(cfg) -> int:
     """The CLI body (Hydra-free apart from ``cfg``); returns the exit status."""
     import hydra.utils
     from omegaconf import OmegaConf
-
-    from tivne.geometry import write_tum_trajectory
 
     try:
         if cfg.format not in ("text", "json"):

@@ -7,14 +7,13 @@ the camera frame, so the ray parameter equals z-depth.
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import numpy as np
 import torch
 from kornia.geometry.liegroup import Se3, So3
 
-from data_modules.frame import DatasetError, Intrinsics
-# Pose helpers live in the data layer (readers need them); re-exported here for tivne callers.
+from data_modules.frame import Intrinsics
+# Pose helpers and TUM trajectory files live in the data layer (readers need them); re-exported
+# here so tivne code keeps importing them from tivne.geometry.
+from data_modules.io import read_tum_trajectory, write_tum_trajectory  # noqa: F401
 from data_modules.poses import matrix_to_quat, orthonormalize_pose, pose_from_tq, quat_to_matrix  # noqa: F401
 
 
@@ -154,54 +153,3 @@ def compose(*poses: torch.Tensor) -> torch.Tensor:
     for p in poses[1:]:
         out = out @ p
     return out
-
-
-def read_tum_trajectory(path: str | Path) -> tuple[np.ndarray, torch.Tensor]:
-    """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` ('#' comments allowed).
-
-    Returns:
-        timestamps (N,) float64 and poses (N, 4, 4) float64.
-    Raises:
-        DatasetError naming the file and line for a missing file or a malformed line.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise DatasetError(path, "trajectory file not found")
-    rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = line.replace(",", " ").split()
-        if len(parts) != 8:
-            raise DatasetError(f"{path}:{lineno}", f"expected 8 numbers (timestamp tx ty tz qx qy qz qw), got {len(parts)}")
-        try:
-            vals = [float(p) for p in parts]
-        except ValueError:
-            raise DatasetError(f"{path}:{lineno}", f"not a number in {line!r}") from None
-        if not np.isfinite(vals).all():
-            raise DatasetError(f"{path}:{lineno}", "non-finite value")
-        if np.linalg.norm(vals[4:]) < 1e-9:
-            raise DatasetError(f"{path}:{lineno}", "zero quaternion")
-        rows.append(vals)
-    if not rows:
-        raise DatasetError(path, "trajectory file has no poses")
-    arr = torch.tensor(rows, dtype=torch.float64)
-    return arr[:, 0].numpy(), pose_from_tq(arr[:, 1:4], arr[:, 4:8])
-
-
-def write_tum_trajectory(path: str | Path, timestamps, poses: torch.Tensor) -> None:
-    """Write (N,) timestamps and (N, 4, 4) c2w poses as a TUM trajectory file (written atomically)."""
-    path = Path(path)
-    poses = torch.as_tensor(poses, dtype=torch.float64)
-    ts = np.asarray(timestamps, dtype=np.float64)
-    if len(ts) != len(poses):
-        raise ValueError(f"{len(ts)} timestamps but {len(poses)} poses")
-    q = matrix_to_quat(poses[:, :3, :3]).numpy()
-    t = poses[:, :3, 3].numpy()
-    lines = ["# timestamp tx ty tz qx qy qz qw"]
-    for i in range(len(ts)):
-        lines.append(" ".join([f"{ts[i]:.6f}"] + [f"{v:.9f}" for v in (*t[i], *q[i])]))
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(path)

@@ -256,7 +256,7 @@ def test_inspect_cli_json_and_gt_out(tmp_path):
 
     from fixtures import run_inspect_cli
 
-    from tivne.geometry import read_tum_trajectory
+    from data_modules.io import read_tum_trajectory
 
     truth = make_cofusion(tmp_path / "car4-full", n=3)
     gt = tmp_path / "gt.txt"

@@ -212,55 +212,11 @@ class TestDataLayerReExports:
         for name in ("quat_to_matrix", "matrix_to_quat", "pose_from_tq", "orthonormalize_pose"):
             assert getattr(G, name) is getattr(poses, name), name
 
+    def test_trajectory_files_are_the_data_layer_functions(self):
+        from data_modules import io
 
-class TestTumTrajectory:
-    def test_write_read_round_trip(self, tmp_path):
-        gen = torch.Generator().manual_seed(12)
-        T = random_poses(25, gen)
-        T[:, :3, 3] *= 3.0
-        ts = 1305031102.175304 + np.cumsum(np.random.default_rng(0).uniform(0.02, 0.05, 25))
-        path = tmp_path / "traj.txt"
-        G.write_tum_trajectory(path, ts, T)
-        ts2, T2 = G.read_tum_trajectory(path)
-        assert ts2.dtype == np.float64 and T2.dtype == F64 and T2.shape == (25, 4, 4)
-        assert np.abs(ts2 - ts).max() < 1e-6
-        assert (T2 - T).abs().max() < 1e-8
-        assert not (tmp_path / "traj.txt.tmp").exists()
-
-    def test_comments_blank_lines_and_commas(self, tmp_path):
-        path = tmp_path / "t.txt"
-        path.write_text("# timestamp tx ty tz qx qy qz qw\n\n  # indented comment\n1.0 1 2 3 0 0 0 1\n2.0,0,0,0,0,0,1,0\n")
-        ts, T = G.read_tum_trajectory(path)
-        assert ts.tolist() == [1.0, 2.0]
-        assert T[0, :3, 3].tolist() == [1.0, 2.0, 3.0]
-        assert torch.allclose(T[1, :3, :3], torch.diag(torch.tensor([-1.0, -1.0, 1.0], dtype=F64)))
-
-    @pytest.mark.parametrize(
-        "bad",
-        ["1.0 1 2 3 0 0 0", "1.0 1 2 3 0 0 0 x", "1.0 1 2 nan 0 0 0 1", "1.0 1 2 3 0 0 0 0"],
-        ids=["seven_fields", "not_a_number", "nan", "zero_quaternion"],
-    )
-    def test_malformed_line_names_file_and_line(self, tmp_path, bad):
-        path = tmp_path / "bad.txt"
-        path.write_text(f"# header\n0.5 0 0 0 0 0 0 1\n{bad}\n")
-        with pytest.raises(DatasetError) as exc:
-            G.read_tum_trajectory(path)
-        assert exc.value.where == f"{path}:3"
-        assert "\n" not in str(exc.value)
-
-    def test_missing_file(self, tmp_path):
-        with pytest.raises(DatasetError, match="not found"):
-            G.read_tum_trajectory(tmp_path / "nope.txt")
-
-    def test_empty_file(self, tmp_path):
-        path = tmp_path / "empty.txt"
-        path.write_text("# only a comment\n")
-        with pytest.raises(DatasetError, match="no poses"):
-            G.read_tum_trajectory(path)
-
-    def test_length_mismatch(self, tmp_path):
-        with pytest.raises(ValueError):
-            G.write_tum_trajectory(tmp_path / "x.txt", [0.0, 1.0], torch.eye(4, dtype=F64)[None])
+        assert G.read_tum_trajectory is io.read_tum_trajectory
+        assert G.write_tum_trajectory is io.write_tum_trajectory
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA not available")
