@@ -15,9 +15,10 @@ timestamps (``timestamps_from``):
 * ``file`` / ``names`` / ``fps``: force one source.
 
 Frames are sorted by name-timestamp when names are timestamps, else by the natural order of the
-stems (``2.png`` before ``10.png``). Poses are matched to frame timestamps exactly as for TUM: SLERP
-between the bracketing poses, nothing outside the poses' time span or across a gap longer than
-``pose_max_gap`` (those frames get ``gt_pose=None``; ``gt_valid`` flags them).
+stems (``2.png`` before ``10.png``). Poses are matched to frame timestamps as for TUM
+(:func:`data_modules.poses.interpolate_poses`): SLERP between the bracketing poses, a frame within
+0.1 ms of a pose takes it (rounded file times), nothing outside the poses' time span or across a gap
+longer than ``pose_max_gap`` (those frames get ``gt_pose=None``; ``gt_valid`` flags them).
 """
 
 from __future__ import annotations

@@ -10,6 +10,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+# A query this close to a sample time takes that sample's pose. Trajectory files round timestamps
+# (6 decimals is usual) while frame times may not be (index / fps), so the last frame can land a
+# microsecond after the last pose; 0.1 ms is far above that rounding and far below a frame period.
+TIME_TOLERANCE_S = 1e-4
+
 
 def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
     """Quaternions (..., 4) in TUM order (qx, qy, qz, qw) -> rotation matrices (..., 3, 3).
@@ -106,7 +111,7 @@ def interpolate_poses(
     poses: torch.Tensor,
     query: np.ndarray,
     max_gap: float | None = None,
-    tolerance: float = 0.0,
+    tolerance: float = TIME_TOLERANCE_S,
 ) -> tuple[torch.Tensor, np.ndarray]:
     """Poses at ``query`` times: SLERP rotation + linear translation between bracketing samples.
 

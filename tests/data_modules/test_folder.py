@@ -57,6 +57,19 @@ def test_timestamps_file_and_partial_poses(tmp_path):
     assert FolderSequence(tmp_path / "rec", timestamps_from="fps", fps=2.0).timestamps.tolist() == [0, 0.5, 1.0]
 
 
+def test_last_frame_keeps_its_pose_with_rounded_pose_times(tmp_path):
+    # Frames at index / fps (1/30 s = 0.0333333...) and poses.txt rounded to 6 decimals (0.033333):
+    # the last frame lies just after the last pose and used to lose its ground truth.
+    rng = np.random.default_rng(4)
+    P = [random_pose(rng) for _ in range(2)]
+    make_folder(tmp_path / "rec", n=2, masks=False, poses=[(0.0, P[0]), (1 / 30, P[1])])
+    ds = FolderSequence(tmp_path / "rec", fps=30.0)
+    assert ds.timestamps[-1] > float(f"{1 / 30:.6f}")
+    assert ds.gt_valid.tolist() == [True, True]
+    for i in range(2):
+        np.testing.assert_allclose(ds[i].gt_pose.numpy(), P[i], atol=1e-9)
+
+
 def test_config_intrinsics(tmp_path):
     make_folder(tmp_path / "rec", intrinsics=None)
     with pytest.raises(DatasetError, match=r"intrinsics\.txt: not found"):

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from data_modules import poses as P
-from data_modules.poses import interpolate_poses, orthonormalize_pose, slerp_quat
+from data_modules.poses import TIME_TOLERANCE_S, interpolate_poses, orthonormalize_pose, slerp_quat
 
 F64 = torch.float64
 
@@ -148,3 +148,16 @@ def test_interpolate_poses_between_samples():
     assert valid.tolist() == [False]  # a 1 s gap is longer than max_gap
     out, valid = interpolate_poses([], torch.zeros(0, 4, 4), [1.0])
     assert valid.tolist() == [False] and torch.equal(out[0], torch.eye(4, dtype=F64))
+
+
+def test_interpolate_poses_snaps_within_tolerance():
+    # Rounded file timestamps: a query a few microseconds outside the samples' span is the end pose.
+    P_ = random_poses(3, 9)
+    t = [1.0, 2.0, 3.0]
+    eps = 0.5 * TIME_TOLERANCE_S
+    out, valid = interpolate_poses(t, P_, [1.0 - eps, 2.0 + eps, 3.0 + eps, 3.0 + 2 * TIME_TOLERANCE_S], max_gap=0.1)
+    assert valid.tolist() == [True, True, True, False]
+    for k, j in enumerate((0, 1, 2)):
+        assert torch.equal(out[k], P_[j])
+    _, exact = interpolate_poses(t, P_, [3.0 + eps, 3.0], max_gap=0.1, tolerance=0.0)
+    assert exact.tolist() == [False, True]
