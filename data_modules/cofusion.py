@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from data_modules.frame import DatasetError, Frame, Intrinsics
+from data_modules.frame import DatasetError, Frame, Intrinsics, intrinsics_from
 from data_modules.io import (
     check_same_size,
     check_size,
@@ -205,7 +205,10 @@ class CoFusionSequence(SequenceDataset):
                 h, w = read_rgb(self.colour_paths[0]).shape[:2]
                 fb.setdefault("width", w)
                 fb.setdefault("height", h)
-            return Intrinsics(float(fb["fx"]), float(fb["fy"]), float(fb["cx"]), float(fb["cy"]), int(fb["width"]), int(fb["height"]))
+            missing = [k for k in ("fx", "fy", "cx", "cy") if fb.get(k) is None]
+            if missing:
+                raise DatasetError("dataset.fallback_intrinsics", f"missing {', '.join(missing)}")
+            return intrinsics_from("dataset.fallback_intrinsics", fb["fx"], fb["fy"], fb["cx"], fb["cy"], fb["width"], fb["height"])
         raise DatasetError(calib, "calibration file not found (and no fallback_intrinsics configured)")
 
     def _decide_ray_distance(self, setting: str | bool) -> bool:

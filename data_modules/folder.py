@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from data_modules.frame import DatasetError, Frame, Intrinsics
+from data_modules.frame import DatasetError, Frame, intrinsics_from
 from data_modules.io import (
     check_same_size,
     check_size,
@@ -153,7 +153,7 @@ class FolderSequence(SequenceDataset):
                 raise DatasetError("dataset.intrinsics", f"missing {', '.join(missing)}")
             w = int(fb.get("width") or first.shape[1])
             h = int(fb.get("height") or first.shape[0])
-            self.intrinsics = Intrinsics(float(fb["fx"]), float(fb["fy"]), float(fb["cx"]), float(fb["cy"]), w, h)
+            self.intrinsics = intrinsics_from("dataset.intrinsics", fb["fx"], fb["fy"], fb["cx"], fb["cy"], w, h)
         else:
             files = [self.root / n for n in ("intrinsics.txt", "intrinsics.json") if (self.root / n).is_file()]
             if not files:

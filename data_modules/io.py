@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 import torch
 
-from data_modules.frame import DatasetError, Intrinsics
+from data_modules.frame import DatasetError, Intrinsics, intrinsics_from
 from data_modules.poses import matrix_to_quat, pose_from_tq
 
 # --------------------------------------------------------------------------------------- writes
@@ -426,7 +426,4 @@ def read_intrinsics_file(path: str | Path, width: int | None = None, height: int
     h = h if h is not None else height
     if w is None or h is None:
         raise DatasetError(path, "image size unknown (give width height in the file or the config)")
-    try:
-        return Intrinsics(*vals, int(w), int(h))
-    except DatasetError as e:
-        raise DatasetError(path, e.problem) from None
+    return intrinsics_from(path, *vals, w, h)

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 import torch
 
-from data_modules.frame import DatasetError, Frame, Intrinsics
+from data_modules.frame import DatasetError, Frame, intrinsics_from
 from data_modules.io import (
     check_same_size,
     check_size,
@@ -168,7 +168,7 @@ class TUMSequence(SequenceDataset):
         if width is None or height is None:
             h, w = read_rgb(self.rgb_paths[0]).shape[:2]
             width, height = width or w, height or h
-        self.intrinsics = Intrinsics(float(vals[0]), float(vals[1]), float(vals[2]), float(vals[3]), int(width), int(height))
+        self.intrinsics = intrinsics_from(f"dataset (camera {camera})", *vals, width, height)
 
         self._maps = None
         if undistort and np.any(self.distortion != 0):

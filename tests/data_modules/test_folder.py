@@ -126,6 +126,15 @@ def test_bad_timestamps(tmp_path):
         FolderSequence(tmp_path / "rec", timestamps_from="names")
 
 
+def test_principal_point_outside_the_image(tmp_path):
+    make_folder(tmp_path / "rec")
+    (tmp_path / "rec" / "intrinsics.txt").write_text("20 21 5000 11.5\n")
+    with pytest.raises(DatasetError, match=rf"intrinsics\.txt: principal point \(cx=5000, cy=11\.5\) is outside the {W}x{H} image"):
+        FolderSequence(tmp_path / "rec")
+    with pytest.raises(DatasetError, match=r"^dataset\.intrinsics: principal point \(cx=1, cy=-7\) is outside"):
+        FolderSequence(tmp_path / "rec", intrinsics={"fx": 5, "fy": 5, "cx": 1, "cy": -7})
+
+
 def test_malformed_poses_and_intrinsics(tmp_path):
     make_folder(tmp_path / "rec", poses=[(0.0, np.eye(4))])
     (tmp_path / "rec" / "poses.txt").write_text("# t\n0 0 0 0 0 0 0 1\n0.1 0 0 0 0 0 0 1 9\n")

@@ -228,7 +228,7 @@ def test_intrinsics_files(tmp_path):
     (tmp_path / "c.txt").write_text("360 361 320 240 640 480\n")
     k = read_intrinsics_file(tmp_path / "c.txt")
     assert (k.fx, k.fy, k.cx, k.cy, k.width, k.height) == (360, 361, 320, 240, 640, 480)
-    (tmp_path / "c4.txt").write_text("360 360 320 240\n")
+    (tmp_path / "c4.txt").write_text("36 36 32 24\n")
     assert read_intrinsics_file(tmp_path / "c4.txt", width=64, height=48).width == 64
     with pytest.raises(DatasetError, match="image size unknown"):
         read_intrinsics_file(tmp_path / "c4.txt")

@@ -9,7 +9,8 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fixtures import H, W, make_tum, random_pose, write_png_rgb  # noqa: E402
+import fixtures  # noqa: E402
+from fixtures import TUM_H, TUM_W, make_tum, random_pose, write_png_rgb  # noqa: E402
 
 from data_modules.frame import DatasetError  # noqa: E402
 from data_modules.tum import (  # noqa: E402
@@ -21,6 +22,7 @@ from data_modules.tum import (  # noqa: E402
 )
 
 T0 = 1341846313.5
+W, H = TUM_W, TUM_H  # the camera presets' image size
 
 
 def _rot(axis, angle):
@@ -73,7 +75,7 @@ def test_camera_presets_and_overrides(tmp_path):
 
 
 def test_undistort_matches_opencv(tmp_path):
-    truth = make_tum(tmp_path / "s", n=2)
+    truth = make_tum(tmp_path / "s", n=2, size=(fixtures.W, fixtures.H))  # small image, custom K
     dist = [0.3, -0.1, 0.01, -0.01, 0.0]
     kw = dict(camera="custom", fx=20.0, fy=20.0, cx=15.5, cy=11.5, distortion=dist)
     raw = TUMSequence(tmp_path / "s", undistort=False, **kw)[0]
@@ -197,6 +199,21 @@ def test_malformed_list_and_groundtruth(tmp_path):
     (tmp_path / "s" / "rgb.txt").write_text("# c\nabc rgb/x.png\n")
     with pytest.raises(DatasetError, match=r"rgb\.txt:2: bad timestamp 'abc'"):
         TUMSequence(tmp_path / "s")
+
+
+def test_principal_point_outside_the_image(tmp_path, capsys):
+    from fixtures import run_inspect_inprocess
+
+    make_tum(tmp_path / "s", n=2)
+    with pytest.raises(DatasetError, match=r"^dataset \(camera fr3\): principal point \(cx=5000, cy=247\.6\) is outside the 640x480 image"):
+        TUMSequence(tmp_path / "s", cx=5000)
+    make_tum(tmp_path / "small", n=2, size=(80, 60))  # fr3 intrinsics on a downscaled recording
+    with pytest.raises(DatasetError, match=r"^dataset \(camera fr3\): principal point \(cx=320\.1, cy=247\.6\) is outside the 80x60"):
+        TUMSequence(tmp_path / "small")
+    # end to end: one line, exit 2 (it used to run to an identity trajectory)
+    assert run_inspect_inprocess("dataset=tum", f"dataset.root={tmp_path / 's'}", "dataset.cx=5000") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["error: dataset (camera fr3): principal point (cx=5000, cy=247.6) is outside the 640x480 image (intrinsics for another image size?)"]
 
 
 def test_no_association(tmp_path):
