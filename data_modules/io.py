@@ -16,6 +16,7 @@ Writers (:func:`atomic_write`, :func:`write_tum_trajectory`) replace a file all 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -96,11 +97,16 @@ def require_file(path: str | Path, what: str = "file") -> Path:
 
 # -------------------------------------------------------------------------------------- images
 
+# OpenCV prints "[ WARN:0@...] ..." lines for a truncated or corrupt file on top of returning None,
+# which the readers already turn into one-line errors naming the file: keep only OpenCV's errors.
+with contextlib.suppress(AttributeError):  # builds without the utils.logging bindings
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
 
 def _imread(path: Path, flags: int) -> np.ndarray:
     if not path.is_file():
         raise DatasetError(path, "image file not found")
-    # np.fromfile + imdecode works for any path encoding and never prints OpenCV warnings.
+    # np.fromfile + imdecode works for any path encoding.
     try:
         buf = np.fromfile(str(path), dtype=np.uint8)
     except OSError as e:

@@ -154,7 +154,7 @@ class TUMSequence(SequenceDataset):
             raise DatasetError(rgb_list, f"no colour image has a depth image within {max_time_diff} s in depth.txt")
         self.dropped_rgb = len(rgb_ts) - len(rgb_idx)
         if self.dropped_rgb:
-            log.info("%s: %d colour images without depth within %.3f s skipped", self.root, self.dropped_rgb, max_time_diff)
+            log.warning("%s: %d colour images without depth within %.3f s skipped", self.root, self.dropped_rgb, max_time_diff)
         self.rgb_paths = [rgb_files[i] for i in rgb_idx]
         self.depth_paths = [depth_files[j] for j in depth_idx]
         for i, j in zip(rgb_idx, depth_idx):
