@@ -211,10 +211,11 @@ def reader_warnings_on_stderr() -> Iterator[None]:
     loggers = [parent] + [
         lg for name, lg in logging.root.manager.loggerDict.items() if name.startswith("data_modules.") and isinstance(lg, logging.Logger)
     ]
-    saved = [(lg, lg.disabled) for lg in loggers], parent.level, parent.propagate
+    was_disabled = [lg.disabled for lg in loggers]
+    level, propagate = parent.level, parent.propagate
     handler = _WarningLines(logging.WARNING)
     for lg in loggers:
-        lg.disabled = False
+        lg.disabled = False  # Hydra's job_logging=disabled switches off the loggers that exist already
     parent.setLevel(logging.WARNING)
     parent.propagate = False  # one line per warning, not another copy through the root handlers
     parent.addHandler(handler)
@@ -224,9 +225,9 @@ def reader_warnings_on_stderr() -> Iterator[None]:
             yield
     finally:
         parent.removeHandler(handler)
-        parent.setLevel(saved[1])
-        parent.propagate = saved[2]
-        for lg, disabled in saved[0]:
+        parent.setLevel(level)
+        parent.propagate = propagate
+        for lg, disabled in zip(loggers, was_disabled):
             lg.disabled = disabled
 
 

@@ -142,11 +142,11 @@ def interpolate_poses(
     if max_gap is not None:
         inside &= (times[hi] - times[lo]) <= max_gap
     out[torch.from_numpy(snap)] = poses[torch.from_numpy(nearest[snap])]
-    a, b = torch.from_numpy(lo[inside]), torch.from_numpy(hi[inside])
-    if len(a):
-        s = torch.from_numpy((query[inside] - times[lo[inside]]) / (times[hi[inside]] - times[lo[inside]]))
+    if inside.any():
+        a, b = lo[inside], hi[inside]
+        s = torch.from_numpy((query[inside] - times[a]) / (times[b] - times[a]))  # (K,) in (0, 1)
+        a, b, rows = torch.from_numpy(a), torch.from_numpy(b), torch.from_numpy(inside)
         quats = matrix_to_quat(poses[:, :3, :3])
-        rows = torch.from_numpy(inside)
         out[rows, :3, :3] = quat_to_matrix(slerp_quat(quats[a], quats[b], s))
         out[rows, :3, 3] = (1 - s)[:, None] * poses[a, :3, 3] + s[:, None] * poses[b, :3, 3]
     valid[snap | inside] = True
