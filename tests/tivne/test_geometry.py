@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 import torch
 from torch.autograd import gradcheck
 
-from data_modules.frame import DatasetError, Intrinsics
+from data_modules.frame import Intrinsics
 from tivne import geometry as G
 
 F64 = torch.float64
