@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from data_modules.frame import DatasetError, Frame, Intrinsics
+from data_modules.frame import DatasetError, Frame, Intrinsics, intrinsics_from
 from data_modules.io import (
     check_same_size,
     check_size,
@@ -40,7 +40,8 @@ from data_modules.io import (
     require_dir,
     sanitize_depth,
 )
-from data_modules.sequence import SequenceDataset, check_monotonic_timestamps
+from data_modules.sequence import SequenceDataset
+from data_modules.timestamps import check_monotonic_timestamps
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +57,15 @@ def _numbered_files(folder: Path, prefix: str, suffix: str) -> dict[int, Path]:
         if m:
             out[int(m.group(1))] = p
     return out
+
+
+def _partner_files(folder: Path, prefix: str, suffix: str, colours: dict[int, Path]) -> list[Path]:
+    """``<prefix>NNNN<suffix>`` of ``folder`` for every colour frame; raise naming the first one missing."""
+    found = _numbered_files(folder, prefix, suffix)
+    for n, colour in sorted(colours.items()):
+        if n not in found:
+            raise DatasetError(folder / f"{prefix}{n:04d}{suffix}", f"missing (colour frame {colour.name} exists)")
+    return [found[n] for n in sorted(colours)]
 
 
 def ray_distance_factor(intr: Intrinsics) -> np.ndarray:
@@ -104,6 +114,21 @@ class CoFusionSequence(SequenceDataset):
         self.max_depth = float(max_depth)
         self.depth_kind = depth
 
+        self._list_frames(depth, masks)
+        self.intrinsics = self._read_intrinsics(fallback_intrinsics)
+        self.timestamps = self._read_timestamps(timestamps_file, fps)
+        self.fps = float(fps)
+        self._read_trajectories(blender_camera_axes)
+
+        self.ray_distance = False
+        if depth == "original":
+            self.ray_distance = self._decide_ray_distance(original_is_ray_distance)
+        self._ray_factor = ray_distance_factor(self.intrinsics) if self.ray_distance else None
+
+    # ------------------------------------------------------------------------------------------
+    def _list_frames(self, depth: str, masks: bool) -> None:
+        """Sets frame_numbers, colour_paths, depth_paths, mask_paths and has_masks; frames must be
+        numbered without gaps and every frame needs its depth (and mask) file."""
         colour_dir = require_dir(self.root / "colour", "colour folder")
         depth_dir = require_dir(self.root / f"depth_{depth}", f"depth_{depth} folder")
         colours = _numbered_files(colour_dir, "Color", ".png")
@@ -116,45 +141,31 @@ class CoFusionSequence(SequenceDataset):
             raise DatasetError(colour_dir / f"Color{missing:04d}.png", f"missing (frames {first}..{last} expected without gaps)")
         self.frame_numbers = np.asarray(numbers, dtype=np.int64)
         self.colour_paths = [colours[n] for n in numbers]
-
-        depths = _numbered_files(depth_dir, "Depth", ".exr")
-        self.depth_paths = []
-        for n in numbers:
-            if n not in depths:
-                raise DatasetError(depth_dir / f"Depth{n:04d}.exr", f"missing (colour frame {colours[n].name} exists)")
-            self.depth_paths.append(depths[n])
-
-        self.mask_paths: list[Path] | None = None
+        self.depth_paths = _partner_files(depth_dir, "Depth", ".exr", colours)
         mask_dir = next((self.root / d for d in ("mask_id", "masks_id") if (self.root / d).is_dir()), None)
-        if masks and mask_dir is not None:
-            found = _numbered_files(mask_dir, "Mask", ".png")
-            self.mask_paths = []
-            for n in numbers:
-                if n not in found:
-                    raise DatasetError(mask_dir / f"Mask{n:04d}.png", f"missing (colour frame {colours[n].name} exists)")
-                self.mask_paths.append(found[n])
+        self.mask_paths = _partner_files(mask_dir, "Mask", ".png", colours) if masks and mask_dir is not None else None
         self.has_masks = self.mask_paths is not None
 
-        self.intrinsics = self._read_intrinsics(fallback_intrinsics)
+    def _read_timestamps(self, timestamps_file: str | Path | None, fps: float) -> np.ndarray:
+        """(N,) float64 timestamps: one per line of ``timestamps_file`` (relative to root), else
+        frame number / fps."""
+        n = len(self.frame_numbers)
+        if timestamps_file is None:
+            return check_monotonic_timestamps(self.frame_numbers / float(fps), f"{self.root} (frame numbers / fps)")
+        tpath = Path(timestamps_file)
+        if not tpath.is_absolute():
+            tpath = self.root / tpath
+        rows = read_table(tpath, [("timestamp", finite_float)], what="timestamps file")
+        if len(rows) != n:
+            raise DatasetError(tpath, f"has {len(rows)} timestamps but the sequence has {n} frames")
+        return check_monotonic_timestamps([r.values[0] for r in rows], str(tpath))
 
-        # timestamps
-        if timestamps_file is not None:
-            tpath = Path(timestamps_file)
-            if not tpath.is_absolute():
-                tpath = self.root / tpath
-            rows = read_table(tpath, [("timestamp", finite_float)], what="timestamps file")
-            if len(rows) != len(numbers):
-                raise DatasetError(tpath, f"has {len(rows)} timestamps but the sequence has {len(numbers)} frames")
-            ts = [r.values[0] for r in rows]
-            self.timestamps = check_monotonic_timestamps(ts, str(tpath))
-        else:
-            self.timestamps = check_monotonic_timestamps(self.frame_numbers / float(fps), f"{self.root} (frame numbers / fps)")
-        self.fps = float(fps)
-
-        # ground truth
+    def _read_trajectories(self, blender_camera_axes: bool) -> None:
+        """Sets has_gt_poses, gt_poses / gt_valid (camera, per frame), object_trajectories and object_ids."""
+        n = len(self.frame_numbers)
         traj_dir = self.root / "trajectories"
-        self.gt_poses: list[torch.Tensor | None] = [None] * len(numbers)
-        self.gt_valid = np.zeros(len(numbers), dtype=bool)
+        self.gt_poses: list[torch.Tensor | None] = [None] * n
+        self.gt_valid = np.zeros(n, dtype=bool)
         self.object_trajectories: dict[str, tuple[np.ndarray, torch.Tensor]] = {}
         self.object_ids: dict[str, int] = {}
         cam_file = traj_dir / "gt-cam-0.txt"
@@ -163,29 +174,23 @@ class CoFusionSequence(SequenceDataset):
             frames, poses = read_pose_table(cam_file, key="frame", what="camera trajectory")
             if blender_camera_axes:
                 poses = poses @ torch.from_numpy(_BLENDER_TO_OPENCV)
-            index = {int(n): i for i, n in enumerate(numbers)}
+            index = {int(num): i for i, num in enumerate(self.frame_numbers)}
             for f, pose in zip(frames, poses):
                 i = index.get(int(f))
                 if i is not None:
                     self.gt_poses[i] = pose
                     self.gt_valid[i] = True
-        if traj_dir.is_dir():
-            for p in sorted(traj_dir.glob("gt-*.txt")):
-                if p.name == "gt-cam-0.txt":
-                    continue
-                key = p.stem[3:]
-                frames, poses = read_pose_table(p, key="frame", what="object trajectory")
-                self.object_trajectories[key] = (frames, poses)
-                m = re.search(r"(\d+)$", key)
-                if m:
-                    self.object_ids[key] = int(m.group(1))
+        if not traj_dir.is_dir():
+            return
+        for p in sorted(traj_dir.glob("gt-*.txt")):
+            if p.name == "gt-cam-0.txt":
+                continue
+            key = p.stem[3:]
+            self.object_trajectories[key] = read_pose_table(p, key="frame", what="object trajectory")
+            m = re.search(r"(\d+)$", key)
+            if m:
+                self.object_ids[key] = int(m.group(1))
 
-        self.ray_distance = False
-        if depth == "original":
-            self.ray_distance = self._decide_ray_distance(original_is_ray_distance)
-        self._ray_factor = ray_distance_factor(self.intrinsics) if self.ray_distance else None
-
-    # ------------------------------------------------------------------------------------------
     def _read_intrinsics(self, fallback: dict | None) -> Intrinsics:
         calib = self.root / "calibration.txt"
         if calib.is_file():
@@ -204,7 +209,10 @@ class CoFusionSequence(SequenceDataset):
                 h, w = read_rgb(self.colour_paths[0]).shape[:2]
                 fb.setdefault("width", w)
                 fb.setdefault("height", h)
-            return Intrinsics(float(fb["fx"]), float(fb["fy"]), float(fb["cx"]), float(fb["cy"]), int(fb["width"]), int(fb["height"]))
+            missing = [k for k in ("fx", "fy", "cx", "cy") if fb.get(k) is None]
+            if missing:
+                raise DatasetError("dataset.fallback_intrinsics", f"missing {', '.join(missing)}")
+            return intrinsics_from("dataset.fallback_intrinsics", fb["fx"], fb["fy"], fb["cx"], fb["cy"], fb["width"], fb["height"])
         raise DatasetError(calib, "calibration file not found (and no fallback_intrinsics configured)")
 
     def _decide_ray_distance(self, setting: str | bool) -> bool:

@@ -15,9 +15,10 @@ timestamps (``timestamps_from``):
 * ``file`` / ``names`` / ``fps``: force one source.
 
 Frames are sorted by name-timestamp when names are timestamps, else by the natural order of the
-stems (``2.png`` before ``10.png``). Poses are matched to frame timestamps exactly as for TUM: SLERP
-between the bracketing poses, nothing outside the poses' time span or across a gap longer than
-``pose_max_gap`` (those frames get ``gt_pose=None``; ``gt_valid`` flags them).
+stems (``2.png`` before ``10.png``). Poses are matched to frame timestamps as for TUM
+(:func:`data_modules.poses.interpolate_poses`): SLERP between the bracketing poses, a frame within
+0.1 ms of a pose takes it (rounded file times), nothing outside the poses' time span or across a gap
+longer than ``pose_max_gap`` (those frames get ``gt_pose=None``; ``gt_valid`` flags them).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from data_modules.frame import DatasetError, Frame, Intrinsics
+from data_modules.frame import DatasetError, Frame, Intrinsics, intrinsics_from
 from data_modules.io import (
     check_same_size,
     check_size,
@@ -41,8 +42,9 @@ from data_modules.io import (
     read_table,
     require_dir,
 )
-from data_modules.sequence import SequenceDataset, check_monotonic_timestamps
-from data_modules.tum import interpolate_poses
+from data_modules.poses import interpolate_poses
+from data_modules.sequence import SequenceDataset
+from data_modules.timestamps import check_monotonic_timestamps
 
 _RGB_EXT = (".png", ".jpg", ".jpeg")
 _TS_NAME = re.compile(r"^[0-9]+\.[0-9]+$")
@@ -50,6 +52,18 @@ _TS_NAME = re.compile(r"^[0-9]+\.[0-9]+$")
 
 def _natural_key(stem: str) -> list:
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", stem)]
+
+
+def _png_by_stem(folder: Path) -> dict[str, Path]:
+    return {p.stem: p for p in folder.iterdir() if p.suffix.lower() == ".png"}
+
+
+def _partner_files(folder: Path, found: dict[str, Path], stems: list[str], rgb: dict[str, Path]) -> list[Path]:
+    """The ``<stem>.png`` of ``folder`` for every colour stem; raise naming the first one missing."""
+    for s in stems:
+        if s not in found:
+            raise DatasetError(folder / f"{s}.png", f"missing (colour image {rgb[s].name} exists)")
+    return [found[s] for s in stems]
 
 
 class FolderSequence(SequenceDataset):
@@ -86,89 +100,83 @@ class FolderSequence(SequenceDataset):
         if timestamps_from not in ("auto", "file", "names", "fps"):
             raise DatasetError("dataset.timestamps_from", f"must be auto, file, names or fps, got {timestamps_from!r}")
 
-        rgb_dir = require_dir(self.root / "rgb", "rgb folder")
+        stems, names_are_ts = self._list_frames()
+        self.timestamp_source, self.timestamps = self._read_timestamps(timestamps_from, fps, stems, names_are_ts)
+        self.intrinsics = self._read_intrinsics(intrinsics)
+        self._read_poses(pose_max_gap)
+
+    def _list_frames(self) -> tuple[list[str], bool]:
+        """Pair every colour image with its depth (and mask) file; return the stems in frame order
+        and whether every stem is a timestamp. Sets rgb_paths, depth_paths, mask_paths, has_masks."""
+        self.rgb_dir = require_dir(self.root / "rgb", "rgb folder")
         depth_dir = require_dir(self.root / "depth", "depth folder")
-        rgb = {p.stem: p for p in rgb_dir.iterdir() if p.suffix.lower() in _RGB_EXT and p.is_file()}
+        rgb = {p.stem: p for p in self.rgb_dir.iterdir() if p.suffix.lower() in _RGB_EXT and p.is_file()}
         if not rgb:
-            raise DatasetError(rgb_dir, "no .png/.jpg colour images")
+            raise DatasetError(self.rgb_dir, "no .png/.jpg colour images")
         stems = list(rgb)
         names_are_ts = all(_TS_NAME.match(s) for s in stems)
         stems.sort(key=(lambda s: float(s)) if names_are_ts else _natural_key)
-
-        depth = {p.stem: p for p in depth_dir.iterdir() if p.suffix.lower() == ".png"}
         self.rgb_paths = [rgb[s] for s in stems]
-        self.depth_paths = []
-        for s in stems:
-            if s not in depth:
-                raise DatasetError(depth_dir / f"{s}.png", f"missing (colour image {rgb[s].name} exists)")
-            self.depth_paths.append(depth[s])
+        depth = _png_by_stem(depth_dir)
+        self.depth_paths = _partner_files(depth_dir, depth, stems, rgb)
         extra = sorted(set(depth) - set(stems))
         if extra:
             raise DatasetError(depth_dir / f"{extra[0]}.png", "has no colour image with the same name in rgb/")
-
-        self.mask_paths: list[Path] | None = None
         mask_dir = self.root / "masks"
-        if mask_dir.is_dir():
-            masks = {p.stem: p for p in mask_dir.iterdir() if p.suffix.lower() == ".png"}
-            self.mask_paths = []
-            for s in stems:
-                if s not in masks:
-                    raise DatasetError(mask_dir / f"{s}.png", f"missing (colour image {rgb[s].name} exists)")
-                self.mask_paths.append(masks[s])
+        self.mask_paths = _partner_files(mask_dir, _png_by_stem(mask_dir), stems, rgb) if mask_dir.is_dir() else None
         self.has_masks = self.mask_paths is not None
+        return stems, names_are_ts
 
-        # timestamps
+    def _read_timestamps(self, source: str, fps: float | None, stems: list[str], names_are_ts: bool) -> tuple[str, np.ndarray]:
+        """The timestamp source actually used (``auto`` resolved) and (N,) float64 timestamps."""
         ts_file = self.root / "timestamps.txt"
-        source = timestamps_from
         if source == "auto":
             source = "file" if ts_file.is_file() else ("names" if names_are_ts else "fps")
         if source == "file":
             rows = read_table(ts_file, [("timestamp", finite_float)], what="timestamps file")
             if len(rows) != len(stems):
                 raise DatasetError(ts_file, f"has {len(rows)} timestamps but rgb/ has {len(stems)} images")
-            ts = [r.values[0] for r in rows]
-            where = str(ts_file)
+            ts, where = [r.values[0] for r in rows], str(ts_file)
         elif source == "names":
             if not names_are_ts:
-                bad = next(s for s in stems if not _TS_NAME.match(s))
-                raise DatasetError(rgb[bad], "file name is not a timestamp like 1341846313.553992.png")
-            ts = [float(s) for s in stems]
-            where = f"{rgb_dir} (file names)"
+                bad = next(k for k, s in enumerate(stems) if not _TS_NAME.match(s))
+                raise DatasetError(self.rgb_paths[bad], "file name is not a timestamp like 1341846313.553992.png")
+            ts, where = [float(s) for s in stems], f"{self.rgb_dir} (file names)"
         else:
             if fps is None or not fps > 0:
                 raise DatasetError("dataset.fps", f"must be > 0, got {fps}")
-            ts = np.arange(len(stems), dtype=np.float64) / float(fps)
-            where = f"{rgb_dir} (index / fps)"
-        self.timestamp_source = source
-        self.timestamps = check_monotonic_timestamps(ts, where)
+            ts, where = np.arange(len(stems), dtype=np.float64) / float(fps), f"{self.rgb_dir} (index / fps)"
+        return source, check_monotonic_timestamps(ts, where)
 
-        # intrinsics
+    def _read_intrinsics(self, intrinsics: dict | None) -> Intrinsics:
+        """From the ``dataset.intrinsics`` config when given, else intrinsics.txt / .json; the image
+        size defaults to the first colour image's."""
         if intrinsics:
-            first = read_rgb(self.rgb_paths[0])
             fb = dict(intrinsics)
             missing = [k for k in ("fx", "fy", "cx", "cy") if fb.get(k) is None]
             if missing:
                 raise DatasetError("dataset.intrinsics", f"missing {', '.join(missing)}")
-            w = int(fb.get("width") or first.shape[1])
-            h = int(fb.get("height") or first.shape[0])
-            self.intrinsics = Intrinsics(float(fb["fx"]), float(fb["fy"]), float(fb["cx"]), float(fb["cy"]), w, h)
-        else:
-            files = [self.root / n for n in ("intrinsics.txt", "intrinsics.json") if (self.root / n).is_file()]
-            if not files:
-                raise DatasetError(self.root / "intrinsics.txt", "not found (give intrinsics.txt/.json or dataset.intrinsics)")
             first = read_rgb(self.rgb_paths[0])
-            self.intrinsics = read_intrinsics_file(files[0], width=first.shape[1], height=first.shape[0])
+            w, h = fb.get("width") or first.shape[1], fb.get("height") or first.shape[0]
+            return intrinsics_from("dataset.intrinsics", fb["fx"], fb["fy"], fb["cx"], fb["cy"], w, h)
+        files = [self.root / n for n in ("intrinsics.txt", "intrinsics.json") if (self.root / n).is_file()]
+        if not files:
+            raise DatasetError(self.root / "intrinsics.txt", "not found (give intrinsics.txt/.json or dataset.intrinsics)")
+        first = read_rgb(self.rgb_paths[0])
+        return read_intrinsics_file(files[0], width=first.shape[1], height=first.shape[0])
 
-        # poses
+    def _read_poses(self, pose_max_gap: float | None) -> None:
+        """Sets has_gt_poses, gt_poses (pose or None per frame) and gt_valid from poses.txt."""
+        n = len(self.timestamps)
         pose_file = self.root / "poses.txt"
         self.has_gt_poses = pose_file.is_file()
-        self.gt_poses: list[torch.Tensor | None] = [None] * len(stems)
-        self.gt_valid = np.zeros(len(stems), dtype=bool)
+        self.gt_poses: list[torch.Tensor | None] = [None] * n
+        self.gt_valid = np.zeros(n, dtype=bool)
         if self.has_gt_poses:
             pts, poses = read_pose_table(pose_file, key="timestamp", what="pose file")
             out, valid = interpolate_poses(pts, poses, self.timestamps, pose_max_gap)
             self.gt_valid = valid
-            self.gt_poses = [out[k] if valid[k] else None for k in range(len(stems))]
+            self.gt_poses = [out[k] if valid[k] else None for k in range(n)]
 
     def load_frame(self, i: int) -> Frame:
         rgb = read_rgb(self.rgb_paths[i])

@@ -30,14 +30,23 @@ class Intrinsics:
     height: int
 
     def __post_init__(self) -> None:
+        """Refuse values no camera has; build through :func:`intrinsics_from` to name the source."""
         for name in ("fx", "fy", "cx", "cy"):
             value = getattr(self, name)
             if not math.isfinite(value):
-                raise DatasetError(f"intrinsics.{name}", f"must be finite, got {value}")
+                raise DatasetError("intrinsics", f"{name} must be finite, got {value}")
         if self.fx <= 0 or self.fy <= 0:
             raise DatasetError("intrinsics", f"focal lengths must be positive, got fx={self.fx} fy={self.fy}")
         if self.width <= 0 or self.height <= 0:
             raise DatasetError("intrinsics", f"image size must be positive, got {self.width}x{self.height}")
+        # Pixel centres are at integer coordinates, so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5].
+        # A principal point outside it (e.g. 640x480 intrinsics on a smaller image) tracks nothing useful.
+        if not (-0.5 <= self.cx <= self.width - 0.5 and -0.5 <= self.cy <= self.height - 0.5):
+            raise DatasetError(
+                "intrinsics",
+                f"principal point (cx={self.cx:g}, cy={self.cy:g}) is outside the {self.width}x{self.height} image"
+                " (intrinsics for another image size?)",
+            )
 
     def K(self, dtype: torch.dtype = torch.float32, device: torch.device | str | None = None) -> torch.Tensor:
         """The 3x3 camera matrix."""
@@ -63,6 +72,19 @@ class Intrinsics:
 
     def as_dict(self) -> dict[str, float | int]:
         return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy, "width": self.width, "height": self.height}
+
+
+def intrinsics_from(source: str | Path, fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> Intrinsics:
+    """:class:`Intrinsics` built from values read from ``source``; a bad value raises a one-line
+    :class:`DatasetError` naming ``source`` (a file, or a config key such as ``dataset.intrinsics``)."""
+    try:
+        values = float(fx), float(fy), float(cx), float(cy), int(width), int(height)
+    except (TypeError, ValueError):
+        raise DatasetError(source, f"fx, fy, cx, cy, width, height must be numbers, got {fx}, {fy}, {cx}, {cy}, {width}, {height}") from None
+    try:
+        return Intrinsics(*values)
+    except DatasetError as e:
+        raise DatasetError(source, e.problem) from None
 
 
 @dataclass

@@ -5,20 +5,27 @@ Prints a summary (frames, duration, resolution, intrinsics, sampled depth range,
 (``gt_out=PATH``) and a PNG contact sheet (``sheet_out=PATH``: one row per frame, rgb | depth | mask).
 
 Bad input (a :class:`DatasetError`, a missing mandatory config value such as ``dataset.root=???``)
-prints one line ``error: <message>`` to stderr and exits with status 2.
+prints one line ``error: <message>`` to stderr and exits with status 2. Reader warnings (missing
+calibration, a short KLG frame count, dropped frames, ...) print as one line ``warning: <message>``
+each on stderr; the summary itself stays alone on stdout.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import math
 import sys
+import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from data_modules.frame import DatasetError
+from data_modules.io import write_tum_trajectory
 from data_modules.sequence import SequenceDataset, SequenceView
 
 EXIT_BAD_INPUT = 2
@@ -181,6 +188,49 @@ def write_contact_sheet(path: str | Path, view: SequenceDataset, rows: int = 4) 
     return img.shape[1], img.shape[0]
 
 
+class _WarningLines(logging.Handler):
+    """Writes each record as one ``warning: <message>`` line to the current ``sys.stderr``."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        _print_warning(record.getMessage())
+
+
+def _print_warning(message: object) -> None:
+    text = str(message).strip()
+    print(f"warning: {text.splitlines()[0] if text else type(message).__name__}", file=sys.stderr)
+
+
+@contextlib.contextmanager
+def reader_warnings_on_stderr() -> Iterator[None]:
+    """Within the block, show the readers' warnings as ``warning: ...`` lines on stderr.
+
+    Catches WARNING records of the ``data_modules`` loggers (also when Hydra's logging config has
+    silenced or disabled them) and Python warnings; restores every setting afterwards.
+    """
+    parent = logging.getLogger("data_modules")
+    loggers = [parent] + [
+        lg for name, lg in logging.root.manager.loggerDict.items() if name.startswith("data_modules.") and isinstance(lg, logging.Logger)
+    ]
+    was_disabled = [lg.disabled for lg in loggers]
+    level, propagate = parent.level, parent.propagate
+    handler = _WarningLines(logging.WARNING)
+    for lg in loggers:
+        lg.disabled = False  # Hydra's job_logging=disabled switches off the loggers that exist already
+    parent.setLevel(logging.WARNING)
+    parent.propagate = False  # one line per warning, not another copy through the root handlers
+    parent.addHandler(handler)
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = lambda message, *args, **kwargs: _print_warning(message)
+            yield
+    finally:
+        parent.removeHandler(handler)
+        parent.setLevel(level)
+        parent.propagate = propagate
+        for lg, disabled in zip(loggers, was_disabled):
+            lg.disabled = disabled
+
+
 def _root_dataset_error(exc: BaseException) -> BaseException | None:
     """The DatasetError / MissingMandatoryValue in ``exc``'s cause/context chain, if any."""
     from omegaconf.errors import MissingMandatoryValue
@@ -208,25 +258,24 @@ def run(cfg) -> int:
     import hydra.utils
     from omegaconf import OmegaConf
 
-    from tivne.geometry import write_tum_trajectory
-
     try:
         if cfg.format not in ("text", "json"):
             raise DatasetError("format", f"must be 'text' or 'json', got {cfg.format!r}")
-        ds = hydra.utils.instantiate(cfg.dataset)
-        data = OmegaConf.to_container(cfg.data, resolve=True)
-        view = SequenceView(ds, **data)
-        summary = summarize(view, int(cfg.get("max_sampled", 20)))
-        if cfg.gt_out:
-            ts, poses = gt_trajectory(view)
-            out = Path(str(cfg.gt_out))
-            if not out.parent.exists():
-                raise DatasetError(out, "output folder does not exist")
-            write_tum_trajectory(out, ts, poses)
-            summary["gt_out"] = str(out)
-        if cfg.sheet_out:
-            write_contact_sheet(str(cfg.sheet_out), view, int(cfg.sheet_frames))
-            summary["sheet_out"] = str(cfg.sheet_out)
+        with reader_warnings_on_stderr():
+            ds = hydra.utils.instantiate(cfg.dataset)
+            data = OmegaConf.to_container(cfg.data, resolve=True)
+            view = SequenceView(ds, **data)
+            summary = summarize(view, int(cfg.get("max_sampled", 20)))
+            if cfg.gt_out:
+                ts, poses = gt_trajectory(view)
+                out = Path(str(cfg.gt_out))
+                if not out.parent.exists():
+                    raise DatasetError(out, "output folder does not exist")
+                write_tum_trajectory(out, ts, poses)
+                summary["gt_out"] = str(out)
+            if cfg.sheet_out:
+                write_contact_sheet(str(cfg.sheet_out), view, int(cfg.sheet_frames))
+                summary["sheet_out"] = str(cfg.sheet_out)
     except Exception as exc:  # noqa: BLE001 -- only bad-input errors are turned into one line
         root = _root_dataset_error(exc)
         if root is None:

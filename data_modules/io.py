@@ -8,11 +8,15 @@ for text tables) and what is wrong. Readers:
 * :func:`read_mask_png` / :func:`read_label_png` — 8/16-bit label images (channel 0 when 3-channel).
 * :func:`read_exr_depth` — OpenEXR depth through the ``OpenEXR`` package (HALF or FLOAT channels).
 * :func:`read_table` — whitespace/comma separated text tables with ``#`` comments, typed columns and
-  ``file:line`` errors; :func:`read_pose_table` builds on it for ``key tx ty tz qx qy qz qw`` files.
+  ``file:line`` errors; :func:`read_pose_table` builds on it for ``key tx ty tz qx qy qz qw`` files
+  and :func:`read_tum_trajectory` / :func:`write_tum_trajectory` read and write TUM trajectories.
+
+Writers (:func:`atomic_write`, :func:`write_tum_trajectory`) replace a file all at once.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -25,7 +29,8 @@ import cv2
 import numpy as np
 import torch
 
-from data_modules.frame import DatasetError, Intrinsics
+from data_modules.frame import DatasetError, Intrinsics, intrinsics_from
+from data_modules.poses import matrix_to_quat, pose_from_tq
 
 # --------------------------------------------------------------------------------------- writes
 
@@ -92,11 +97,16 @@ def require_file(path: str | Path, what: str = "file") -> Path:
 
 # -------------------------------------------------------------------------------------- images
 
+# OpenCV prints "[ WARN:0@...] ..." lines for a truncated or corrupt file on top of returning None,
+# which the readers already turn into one-line errors naming the file: keep only OpenCV's errors.
+with contextlib.suppress(AttributeError):  # builds without the utils.logging bindings
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
 
 def _imread(path: Path, flags: int) -> np.ndarray:
     if not path.is_file():
         raise DatasetError(path, "image file not found")
-    # np.fromfile + imdecode works for any path encoding and never prints OpenCV warnings.
+    # np.fromfile + imdecode works for any path encoding.
     try:
         buf = np.fromfile(str(path), dtype=np.uint8)
     except OSError as e:
@@ -329,16 +339,17 @@ def read_pose_table(path: str | Path, key: str = "timestamp", what: str = "traje
 
     Args:
         key: ``"timestamp"`` (float seconds, TUM) or ``"frame"`` (integer frame number, Co-Fusion).
+        what: how the file is described in errors ("ground-truth file", ...).
     Returns:
         keys (N,) float64 (or int64 for frames) and poses (N, 4, 4) float64 torch tensor.
     Raises:
         DatasetError ``file:line`` for malformed lines, zero quaternions, and duplicate or
-        decreasing keys.
+        decreasing keys; ``file`` for a missing file or one without poses.
     """
-    from tivne.geometry import pose_from_tq
-
     conv = integer if key == "frame" else finite_float
-    rows = read_table(path, [(key, conv), *POSE_COLUMNS], what=what)
+    rows = read_table(path, [(key, conv), *POSE_COLUMNS], allow_empty=True, what=what)
+    if not rows:
+        raise DatasetError(path, f"{what} has no poses")
     keys = np.array([r.values[0] for r in rows], dtype=np.int64 if key == "frame" else np.float64)
     vals = np.array([r.values[1:] for r in rows], dtype=np.float64)
     for r, v in zip(rows, vals):
@@ -350,6 +361,39 @@ def read_pose_table(path: str | Path, key: str = "timestamp", what: str = "traje
     t = torch.from_numpy(vals[:, :3])
     q = torch.from_numpy(vals[:, 3:])
     return keys, pose_from_tq(t, q)
+
+
+def read_tum_trajectory(path: str | Path, what: str = "trajectory file") -> tuple[np.ndarray, torch.Tensor]:
+    """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` ('#' comments, commas allowed).
+
+    Returns:
+        timestamps (N,) float64 strictly increasing [s] and poses (N, 4, 4) float64.
+    Raises:
+        DatasetError naming the file (and the line) for a missing or empty file or a bad line.
+    """
+    return read_pose_table(path, key="timestamp", what=what)
+
+
+def write_tum_trajectory(path: str | Path, timestamps: Sequence[float] | np.ndarray, poses: torch.Tensor) -> Path:
+    """Write a TUM trajectory file (atomically, see :func:`atomic_write`).
+
+    Args:
+        timestamps: (N,) seconds, written with 6 decimals.
+        poses: (N, 4, 4) camera-to-world; translation and quaternion written with 9 decimals.
+    Returns:
+        ``path`` as a Path.
+    Raises:
+        ValueError: timestamps and poses differ in length.
+    """
+    poses = torch.as_tensor(poses, dtype=torch.float64).detach().cpu()
+    ts = np.asarray(timestamps, dtype=np.float64)
+    if len(ts) != len(poses):
+        raise ValueError(f"{len(ts)} timestamps but {len(poses)} poses")
+    q = matrix_to_quat(poses[:, :3, :3]).numpy()
+    t = poses[:, :3, 3].numpy()
+    lines = ["# timestamp tx ty tz qx qy qz qw"]
+    lines += [" ".join([f"{ts[i]:.6f}"] + [f"{v:.9f}" for v in (*t[i], *q[i])]) for i in range(len(ts))]
+    return atomic_write(path, "\n".join(lines) + "\n")
 
 
 def read_intrinsics_file(path: str | Path, width: int | None = None, height: int | None = None) -> Intrinsics:
@@ -388,7 +432,4 @@ def read_intrinsics_file(path: str | Path, width: int | None = None, height: int
     h = h if h is not None else height
     if w is None or h is None:
         raise DatasetError(path, "image size unknown (give width height in the file or the config)")
-    try:
-        return Intrinsics(*vals, int(w), int(h))
-    except DatasetError as e:
-        raise DatasetError(path, e.problem) from None
+    return intrinsics_from(path, *vals, w, h)

@@ -26,9 +26,10 @@ import cv2
 import numpy as np
 import torch
 
-from data_modules.frame import DatasetError, Frame, Intrinsics
+from data_modules.frame import DatasetError, Frame, intrinsics_from
 from data_modules.io import require_file
-from data_modules.sequence import SequenceDataset, check_monotonic_timestamps
+from data_modules.sequence import SequenceDataset
+from data_modules.timestamps import check_monotonic_timestamps
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +66,7 @@ class KLGSequence(SequenceDataset):
     ) -> None:
         self.path = require_file(root, "KLG log")
         self.name = name or self.path.stem
-        self.intrinsics = Intrinsics(float(fx), float(fy), float(cx), float(cy), int(width), int(height))
+        self.intrinsics = intrinsics_from("dataset", fx, fy, cx, cy, width, height)
         if not depth_scale > 0:
             raise DatasetError("dataset.depth_scale", f"must be > 0, got {depth_scale}")
         self.depth_scale = float(depth_scale)

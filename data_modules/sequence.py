@@ -15,22 +15,6 @@ from torch.utils.data import DataLoader, Dataset
 from data_modules.frame import DatasetError, Frame, Intrinsics
 
 
-def check_monotonic_timestamps(timestamps: Sequence[float] | np.ndarray, source: str) -> np.ndarray:
-    """Return ``timestamps`` as float64; raise :class:`DatasetError` unless strictly increasing and finite."""
-    ts = np.asarray(timestamps, dtype=np.float64)
-    if ts.ndim != 1:
-        raise DatasetError(source, f"timestamps must be 1-D, got shape {ts.shape}")
-    if not np.isfinite(ts).all():
-        bad = int(np.flatnonzero(~np.isfinite(ts))[0])
-        raise DatasetError(source, f"timestamp {bad} is not finite")
-    if ts.size > 1:
-        step = np.diff(ts)
-        if (step <= 0).any():
-            bad = int(np.flatnonzero(step <= 0)[0]) + 1
-            raise DatasetError(source, f"timestamps are not strictly increasing at entry {bad} ({ts[bad - 1]:.6f} -> {ts[bad]:.6f})")
-    return ts
-
-
 class SequenceDataset(Dataset, abc.ABC):
     """A recorded RGB-D sequence: ``len(ds)`` frames in time order, ``ds[i]`` is a :class:`Frame`.
 

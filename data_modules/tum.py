@@ -8,7 +8,7 @@ Layout::
     <root>/rgb/  <root>/depth/   8-bit colour and 16-bit depth PNGs (depth / 5000 = metres)
 
 Frames are the colour images that have a depth image within ``max_time_diff`` (TUM associate.py
-semantics: all pairs closer than the limit, accepted greedily by increasing difference, each image
+semantics: all pairs with |dt| <= the limit, accepted greedily by increasing difference, each image
 used once); a frame's timestamp is its colour timestamp. Ground truth is interpolated at the frame
 timestamps (SLERP rotation, linear translation) between the two bracketing GT poses; frames before
 the first / after the last GT pose or inside a GT gap longer than ``gt_max_gap`` get ``gt_pose=None``
@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 import torch
 
-from data_modules.frame import DatasetError, Frame, Intrinsics
+from data_modules.frame import DatasetError, Frame, intrinsics_from
 from data_modules.io import (
     check_same_size,
     check_size,
@@ -41,8 +41,9 @@ from data_modules.io import (
     read_table,
     require_dir,
 )
-from data_modules.sequence import SequenceDataset, check_monotonic_timestamps
-from tivne.geometry import matrix_to_quat, quat_to_matrix
+from data_modules.poses import interpolate_poses, orthonormalize_pose
+from data_modules.sequence import SequenceDataset
+from data_modules.timestamps import associate_by_timestamp, check_monotonic_timestamps
 
 log = logging.getLogger(__name__)
 
@@ -66,21 +67,8 @@ T_M_RAW = np.array(
     ],
     dtype=np.float64,
 )
-
-
-def project_to_rotation(T: np.ndarray) -> np.ndarray:
-    """Replace the 3x3 block of a 4x4 by its nearest rotation (SVD, det +1); keep the translation."""
-    U, _, Vt = np.linalg.svd(T[:3, :3])
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        U[:, -1] *= -1
-        R = U @ Vt
-    out = T.copy()
-    out[:3, :3] = R
-    return out
-
-
-T_M = project_to_rotation(T_M_RAW)
+# T_M_RAW's rotation block has singular values ~1.06 (a scaled rotation); use its nearest rotation.
+T_M = orthonormalize_pose(torch.from_numpy(T_M_RAW)).numpy()
 
 
 def bonn_marker_to_camera(T_gt: torch.Tensor) -> torch.Tensor:
@@ -91,92 +79,6 @@ def bonn_marker_to_camera(T_gt: torch.Tensor) -> torch.Tensor:
     ros = torch.as_tensor(T_ROS, dtype=T_gt.dtype)
     tm = torch.as_tensor(T_M, dtype=T_gt.dtype)
     return ros @ T_gt @ ros @ tm
-
-
-def associate(first: np.ndarray, second: np.ndarray, max_difference: float, offset: float = 0.0) -> list[tuple[int, int]]:
-    """TUM ``associate.py``: pairs (i, j) with |first[i] - (second[j] + offset)| < max_difference.
-
-    Candidates are accepted greedily by increasing difference, each index at most once; the
-    result is sorted by ``i``.
-    """
-    first = np.asarray(first, dtype=np.float64)
-    second = np.asarray(second, dtype=np.float64) + offset
-    order = np.argsort(second, kind="stable")
-    s_sorted = second[order]
-    cands = []
-    for i, a in enumerate(first):
-        lo = np.searchsorted(s_sorted, a - max_difference, side="left")
-        hi = np.searchsorted(s_sorted, a + max_difference, side="right")
-        for k in range(lo, hi):
-            diff = abs(a - s_sorted[k])
-            if diff < max_difference:
-                cands.append((diff, i, int(order[k])))
-    cands.sort()
-    used_a: set[int] = set()
-    used_b: set[int] = set()
-    pairs = []
-    for _, i, j in cands:
-        if i not in used_a and j not in used_b:
-            used_a.add(i)
-            used_b.add(j)
-            pairs.append((i, j))
-    pairs.sort()
-    return pairs
-
-
-def interpolate_poses(
-    times: np.ndarray, poses: torch.Tensor, query: np.ndarray, max_gap: float | None = None
-) -> tuple[torch.Tensor, np.ndarray]:
-    """Poses at ``query`` times: SLERP rotation + linear translation between bracketing samples.
-
-    Args:
-        times: (N,) strictly increasing sample times.
-        poses: (N, 4, 4) float64 poses at ``times``.
-        query: (M,) times to evaluate.
-        max_gap: the bracketing samples may be at most this far apart (None = any); a query equal
-            to a sample time is always valid.
-    Returns:
-        (M, 4, 4) float64 poses (identity where invalid) and (M,) bool ``valid``: False outside
-        [times[0], times[-1]] or inside a longer gap. Nothing is extrapolated.
-    """
-    times = np.asarray(times, dtype=np.float64)
-    query = np.asarray(query, dtype=np.float64)
-    poses = torch.as_tensor(poses, dtype=torch.float64)
-    m = len(query)
-    out = torch.eye(4, dtype=torch.float64).repeat(m, 1, 1)
-    valid = np.zeros(m, dtype=bool)
-    if len(times) == 0 or m == 0:
-        return out, valid
-    quats = matrix_to_quat(poses[:, :3, :3]).numpy()
-    trans = poses[:, :3, 3].numpy()
-    # exact hits first
-    j = np.searchsorted(times, query, side="left")
-    for k, (t, jj) in enumerate(zip(query, j)):
-        if jj < len(times) and times[jj] == t:
-            out[k] = poses[jj]
-            valid[k] = True
-            continue
-        if jj == 0 or jj >= len(times):
-            continue  # outside coverage
-        a, b = jj - 1, jj
-        gap = times[b] - times[a]
-        if max_gap is not None and gap > max_gap:
-            continue
-        s = (t - times[a]) / gap
-        qa, qb = quats[a], quats[b]
-        dot = float(np.dot(qa, qb))
-        if dot < 0:
-            qb, dot = -qb, -dot
-        if dot > 0.9995:
-            q = qa + s * (qb - qa)
-        else:
-            theta = np.arccos(min(dot, 1.0))
-            q = (np.sin((1 - s) * theta) * qa + np.sin(s * theta) * qb) / np.sin(theta)
-        q = q / np.linalg.norm(q)
-        out[k, :3, :3] = quat_to_matrix(torch.from_numpy(q))
-        out[k, :3, 3] = torch.from_numpy((1 - s) * trans[a] + s * trans[b])
-        valid[k] = True
-    return out, valid
 
 
 def _list_file(root: Path, name: str) -> tuple[np.ndarray, list[Path], list[int], Path]:
@@ -247,26 +149,26 @@ class TUMSequence(SequenceDataset):
 
         rgb_ts, rgb_files, rgb_lines, rgb_list = _list_file(self.root, "rgb.txt")
         depth_ts, depth_files, depth_lines, depth_list = _list_file(self.root, "depth.txt")
-        pairs = associate(rgb_ts, depth_ts, max_time_diff)
-        if not pairs:
+        rgb_idx, depth_idx = associate_by_timestamp(rgb_ts, depth_ts, max_time_diff)
+        if not len(rgb_idx):
             raise DatasetError(rgb_list, f"no colour image has a depth image within {max_time_diff} s in depth.txt")
-        self.dropped_rgb = len(rgb_ts) - len(pairs)
+        self.dropped_rgb = len(rgb_ts) - len(rgb_idx)
         if self.dropped_rgb:
-            log.info("%s: %d colour images without depth within %.3f s skipped", self.root, self.dropped_rgb, max_time_diff)
-        self.rgb_paths = [rgb_files[i] for i, _ in pairs]
-        self.depth_paths = [depth_files[j] for _, j in pairs]
-        for (i, j) in pairs:
+            log.warning("%s: %d colour images without depth within %.3f s skipped", self.root, self.dropped_rgb, max_time_diff)
+        self.rgb_paths = [rgb_files[i] for i in rgb_idx]
+        self.depth_paths = [depth_files[j] for j in depth_idx]
+        for i, j in zip(rgb_idx, depth_idx):
             if not rgb_files[i].is_file():
                 raise DatasetError(rgb_files[i], f"missing (listed in {rgb_list.name}:{rgb_lines[i]})")
             if not depth_files[j].is_file():
                 raise DatasetError(depth_files[j], f"missing (listed in {depth_list.name}:{depth_lines[j]})")
-        self.timestamps = check_monotonic_timestamps([rgb_ts[i] for i, _ in pairs], str(rgb_list))
-        self.depth_timestamps = np.array([depth_ts[j] for _, j in pairs], dtype=np.float64)
+        self.timestamps = check_monotonic_timestamps(rgb_ts[rgb_idx], str(rgb_list))
+        self.depth_timestamps = depth_ts[depth_idx]
 
         if width is None or height is None:
             h, w = read_rgb(self.rgb_paths[0]).shape[:2]
             width, height = width or w, height or h
-        self.intrinsics = Intrinsics(float(vals[0]), float(vals[1]), float(vals[2]), float(vals[3]), int(width), int(height))
+        self.intrinsics = intrinsics_from(f"dataset (camera {camera})", *vals, width, height)
 
         self._maps = None
         if undistort and np.any(self.distortion != 0):

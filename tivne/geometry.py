@@ -7,13 +7,14 @@ the camera frame, so the ray parameter equals z-depth.
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import numpy as np
 import torch
 from kornia.geometry.liegroup import Se3, So3
 
-from data_modules.frame import DatasetError, Intrinsics
+from data_modules.frame import Intrinsics
+# Pose helpers and TUM trajectory files live in the data layer (readers need them); re-exported
+# here so tivne code keeps importing them from tivne.geometry.
+from data_modules.io import read_tum_trajectory, write_tum_trajectory  # noqa: F401
+from data_modules.poses import matrix_to_quat, orthonormalize_pose, pose_from_tq, quat_to_matrix  # noqa: F401
 
 
 def intrinsics_to_K(intr: Intrinsics, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
@@ -119,22 +120,6 @@ def _grad_only_if_needed(x: torch.Tensor) -> torch.set_grad_enabled:
     return torch.set_grad_enabled(torch.is_grad_enabled() and x.requires_grad)
 
 
-def orthonormalize_pose(T: torch.Tensor) -> torch.Tensor:
-    """Project the rotation block of (..., 4, 4) transforms onto SO(3) (SVD, nearest in Frobenius norm).
-
-    Pose chains such as T1 · T2⁻¹ · T1 (with the inverse taken as Rᵀ) double a rotation's
-    non-orthogonality every time; projecting stored poses keeps float32 round-off from compounding.
-    """
-    U, _, Vh = torch.linalg.svd(T[..., :3, :3].double())
-    d = torch.sign(torch.det(U @ Vh))
-    U = torch.cat([U[..., :, :2], U[..., :, 2:] * d[..., None, None]], dim=-1)
-    out = T.clone()
-    out[..., :3, :3] = (U @ Vh).to(T.dtype)
-    out[..., 3, :3] = 0
-    out[..., 3, 3] = 1
-    return out
-
-
 def se3_exp(xi: torch.Tensor) -> torch.Tensor:
     """SE(3) exponential map.
 
@@ -168,99 +153,3 @@ def compose(*poses: torch.Tensor) -> torch.Tensor:
     for p in poses[1:]:
         out = out @ p
     return out
-
-
-def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
-    """Unit quaternions (..., 4) in TUM order (qx, qy, qz, qw) -> rotation matrices (..., 3, 3).
-
-    The quaternion is normalised first, so slightly off-unit file values are accepted.
-    """
-    q = q / q.norm(dim=-1, keepdim=True)
-    x, y, z, w = q.unbind(-1)
-    row0 = torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1)
-    row1 = torch.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1)
-    row2 = torch.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)
-    return torch.stack([row0, row1, row2], dim=-2)
-
-
-def matrix_to_quat(R: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) (qx, qy, qz, qw) with qw >= 0.
-
-    Uses the numerically stable branch on the largest diagonal term (Shepperd's method).
-    """
-    m = R
-    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
-    cands = torch.stack(
-        [
-            torch.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1], 1 + trace], -1),
-            torch.stack([1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2], m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] - m[..., 1, 2]], -1),
-            torch.stack([m[..., 0, 1] + m[..., 1, 0], 1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2], m[..., 1, 2] + m[..., 2, 1], m[..., 0, 2] - m[..., 2, 0]], -1),
-            torch.stack([m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], 1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2], m[..., 1, 0] - m[..., 0, 1]], -1),
-        ],
-        dim=-2,
-    )  # (..., 4 candidates, 4) each proportional to (x, y, z, w)
-    key = torch.stack([trace, m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]], -1)
-    best = key.argmax(-1)
-    q = torch.gather(cands, -2, best[..., None, None].expand(*best.shape, 1, 4))[..., 0, :]
-    q = q / q.norm(dim=-1, keepdim=True)
-    return torch.where(q[..., 3:4] < 0, -q, q)
-
-
-def pose_from_tq(t: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-    """Translation (..., 3) + quaternion (..., 4) (qx, qy, qz, qw) -> (..., 4, 4) pose."""
-    T = torch.zeros(*t.shape[:-1], 4, 4, dtype=t.dtype, device=t.device)
-    T[..., :3, :3] = quat_to_matrix(q.to(t.dtype))
-    T[..., :3, 3] = t
-    T[..., 3, 3] = 1.0
-    return T
-
-
-def read_tum_trajectory(path: str | Path) -> tuple[np.ndarray, torch.Tensor]:
-    """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` ('#' comments allowed).
-
-    Returns:
-        timestamps (N,) float64 and poses (N, 4, 4) float64.
-    Raises:
-        DatasetError naming the file and line for a missing file or a malformed line.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise DatasetError(path, "trajectory file not found")
-    rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = line.replace(",", " ").split()
-        if len(parts) != 8:
-            raise DatasetError(f"{path}:{lineno}", f"expected 8 numbers (timestamp tx ty tz qx qy qz qw), got {len(parts)}")
-        try:
-            vals = [float(p) for p in parts]
-        except ValueError:
-            raise DatasetError(f"{path}:{lineno}", f"not a number in {line!r}") from None
-        if not np.isfinite(vals).all():
-            raise DatasetError(f"{path}:{lineno}", "non-finite value")
-        if np.linalg.norm(vals[4:]) < 1e-9:
-            raise DatasetError(f"{path}:{lineno}", "zero quaternion")
-        rows.append(vals)
-    if not rows:
-        raise DatasetError(path, "trajectory file has no poses")
-    arr = torch.tensor(rows, dtype=torch.float64)
-    return arr[:, 0].numpy(), pose_from_tq(arr[:, 1:4], arr[:, 4:8])
-
-
-def write_tum_trajectory(path: str | Path, timestamps, poses: torch.Tensor) -> None:
-    """Write (N,) timestamps and (N, 4, 4) c2w poses as a TUM trajectory file (written atomically)."""
-    path = Path(path)
-    poses = torch.as_tensor(poses, dtype=torch.float64)
-    ts = np.asarray(timestamps, dtype=np.float64)
-    if len(ts) != len(poses):
-        raise ValueError(f"{len(ts)} timestamps but {len(poses)} poses")
-    q = matrix_to_quat(poses[:, :3, :3]).numpy()
-    t = poses[:, :3, 3].numpy()
-    lines = ["# timestamp tx ty tz qx qy qz qw"]
-    for i in range(len(ts)):
-        lines.append(" ".join([f"{ts[i]:.6f}"] + [f"{v:.9f}" for v in (*t[i], *q[i])]))
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(path)

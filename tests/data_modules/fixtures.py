@@ -16,9 +16,11 @@ import numpy as np
 import OpenEXR
 import torch
 
-from tivne.geometry import matrix_to_quat
+from data_modules.poses import matrix_to_quat
 
 W, H = 32, 24
+# TUM / Bonn camera presets are for 640x480 (a principal point near (320, 240) must lie in the image)
+TUM_W, TUM_H = 640, 480
 
 
 # ------------------------------------------------------------------------------ primitive writers
@@ -52,6 +54,14 @@ def write_exr(path: Path, channels: dict[str, np.ndarray], half: bool = False) -
 
 def random_rgb(rng: np.random.Generator, h: int = H, w: int = W) -> np.ndarray:
     return rng.integers(0, 256, size=(h, w, 3), dtype=np.uint8)
+
+
+def blocky(rng: np.random.Generator, shape: tuple[int, ...], high: int, dtype, block: int = 8) -> np.ndarray:
+    """Random values in [0, high) constant over ``block`` x ``block`` tiles: full-size images that
+    PNG-encode in milliseconds (noise at 640x480 is slow to write and read)."""
+    h, w = shape[:2]
+    small = rng.integers(0, high, size=(-(-h // block), -(-w // block), *shape[2:])).astype(dtype)
+    return np.ascontiguousarray(small.repeat(block, 0).repeat(block, 1)[:h, :w])
 
 
 def random_pose(rng: np.random.Generator) -> np.ndarray:
@@ -204,11 +214,13 @@ def make_tum(
     dt: float = 1 / 30,
     depth_offsets=(0.011, -0.013, 0.004, 0.5),
     gt: list[tuple[float, np.ndarray]] | None = None,
+    size: tuple[int, int] = (TUM_W, TUM_H),
     seed: int = 0,
 ) -> SimpleNamespace:
     """A TUM-layout folder: n colour frames; depth stamps offset per frame (|offset| >= 0.02 -> unmatched).
 
     ``gt``: explicit (timestamp, 4x4) groundtruth rows; default: no groundtruth.txt.
+    ``size``: (width, height) of the images; the default suits the camera presets.
     """
     rng = np.random.default_rng(seed)
     root.mkdir(parents=True, exist_ok=True)
@@ -219,8 +231,9 @@ def make_tum(
         t = t0 + k * dt
         off = depth_offsets[k % len(depth_offsets)]
         td = t + off
-        rgb = random_rgb(rng)
-        raw = rng.integers(0, 30000, size=(H, W)).astype(np.uint16)
+        w, h = size
+        rgb = random_rgb(rng, h, w) if (w, h) == (W, H) else blocky(rng, (h, w, 3), 256, np.uint8)
+        raw = rng.integers(0, 30000, size=(h, w)).astype(np.uint16) if (w, h) == (W, H) else blocky(rng, (h, w), 30000, np.uint16)
         name_r, name_d = f"rgb/{t:.6f}.png", f"depth/{td:.6f}.png"
         write_png_rgb(root / name_r, rgb)
         write_png16(root / name_d, raw)

@@ -119,6 +119,15 @@ def test_fallback_intrinsics(tmp_path):
 # ----------------------------------------------------------------------------------- bad input
 
 
+def test_principal_point_outside_the_image(tmp_path):
+    make_cofusion(tmp_path / "s", calib="20 21 15.5 5000 32 24")
+    with pytest.raises(DatasetError, match=r"calibration\.txt: principal point \(cx=15\.5, cy=5000\) is outside the 32x24 image"):
+        CoFusionSequence(tmp_path / "s")
+    make_cofusion(tmp_path / "t", calib=None)
+    with pytest.raises(DatasetError, match=r"^dataset\.fallback_intrinsics: principal point \(cx=320, cy=240\) is outside the 32x24"):
+        CoFusionSequence(tmp_path / "t", fallback_intrinsics={"fx": 10, "fy": 10, "cx": 320, "cy": 240})
+
+
 def test_missing_root(tmp_path):
     with pytest.raises(DatasetError, match=r"nowhere: Co-Fusion sequence folder not found"):
         CoFusionSequence(tmp_path / "nowhere")
@@ -256,7 +265,7 @@ def test_inspect_cli_json_and_gt_out(tmp_path):
 
     from fixtures import run_inspect_cli
 
-    from tivne.geometry import read_tum_trajectory
+    from data_modules.io import read_tum_trajectory
 
     truth = make_cofusion(tmp_path / "car4-full", n=3)
     gt = tmp_path / "gt.txt"

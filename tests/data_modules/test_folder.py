@@ -57,6 +57,19 @@ def test_timestamps_file_and_partial_poses(tmp_path):
     assert FolderSequence(tmp_path / "rec", timestamps_from="fps", fps=2.0).timestamps.tolist() == [0, 0.5, 1.0]
 
 
+def test_last_frame_keeps_its_pose_with_rounded_pose_times(tmp_path):
+    # Frames at index / fps (1/30 s = 0.0333333...) and poses.txt rounded to 6 decimals (0.033333):
+    # the last frame lies just after the last pose and used to lose its ground truth.
+    rng = np.random.default_rng(4)
+    P = [random_pose(rng) for _ in range(2)]
+    make_folder(tmp_path / "rec", n=2, masks=False, poses=[(0.0, P[0]), (1 / 30, P[1])])
+    ds = FolderSequence(tmp_path / "rec", fps=30.0)
+    assert ds.timestamps[-1] > float(f"{1 / 30:.6f}")
+    assert ds.gt_valid.tolist() == [True, True]
+    for i in range(2):
+        np.testing.assert_allclose(ds[i].gt_pose.numpy(), P[i], atol=1e-9)
+
+
 def test_config_intrinsics(tmp_path):
     make_folder(tmp_path / "rec", intrinsics=None)
     with pytest.raises(DatasetError, match=r"intrinsics\.txt: not found"):
@@ -111,6 +124,15 @@ def test_bad_timestamps(tmp_path):
         FolderSequence(tmp_path / "rec")
     with pytest.raises(DatasetError, match=r"file name is not a timestamp"):
         FolderSequence(tmp_path / "rec", timestamps_from="names")
+
+
+def test_principal_point_outside_the_image(tmp_path):
+    make_folder(tmp_path / "rec")
+    (tmp_path / "rec" / "intrinsics.txt").write_text("20 21 5000 11.5\n")
+    with pytest.raises(DatasetError, match=rf"intrinsics\.txt: principal point \(cx=5000, cy=11\.5\) is outside the {W}x{H} image"):
+        FolderSequence(tmp_path / "rec")
+    with pytest.raises(DatasetError, match=r"^dataset\.intrinsics: principal point \(cx=1, cy=-7\) is outside"):
+        FolderSequence(tmp_path / "rec", intrinsics={"fx": 5, "fy": 5, "cx": 1, "cy": -7})
 
 
 def test_malformed_poses_and_intrinsics(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -16,7 +17,7 @@ import torch
 from data_modules.frame import DatasetError, Frame, Intrinsics
 from data_modules.inspect import contact_sheet, gt_trajectory, run, sample_indices, summarize
 from data_modules.sequence import SequenceDataset, SequenceView
-from tivne.geometry import read_tum_trajectory
+from data_modules.io import read_tum_trajectory
 
 REPO = Path(__file__).resolve().parents[2]
 SMALL = ["dataset.width=80", "dataset.height=60", "dataset.num_frames=5", "dataset.cache_dir=null"]
@@ -138,3 +139,74 @@ def test_run_errors_in_process(capsys, override, message):
     assert run(cfg) == 2
     captured = capsys.readouterr()
     assert captured.out == "" and captured.err.startswith(message) and captured.err.count("\n") == 1
+
+
+# ------------------------------------------------------------------------- warnings and OpenCV noise
+
+
+def _fixtures():
+    sys.path.insert(0, str(Path(__file__).parent))
+    import fixtures
+
+    return fixtures
+
+
+def _run_capturing(capsys, *overrides: str) -> tuple[int, list[str], str]:
+    status = _fixtures().run_inspect_inprocess(*overrides, "format=json")
+    out = capsys.readouterr()
+    return status, out.err.splitlines(), out.out
+
+
+def test_reader_warnings_are_shown_one_line_each(tmp_path, capsys):
+    fx = _fixtures()
+    # KLG whose header frame count is short (an unfinished recording)
+    fx.make_klg(tmp_path / "t.klg", header_count=0)
+    small = [f"dataset.width={fx.W}", f"dataset.height={fx.H}", "dataset.fx=20", "dataset.fy=20", "dataset.cx=16", "dataset.cy=12"]
+    status, err, out = _run_capturing(capsys, "dataset=teddy", f"dataset.root={tmp_path / 't.klg'}", *small)
+    assert status == 0 and json.loads(out)["frames"] == 3
+    assert err == [f"warning: {tmp_path / 't.klg'}: header says 0 frames, found 3 (unfinished recording?); using all"]
+    # TUM: the 4th colour image has no depth within 0.02 s
+    fx.make_tum(tmp_path / "tum", n=4)
+    status, err, out = _run_capturing(capsys, "dataset=tum", f"dataset.root={tmp_path / 'tum'}")
+    assert status == 0 and json.loads(out)["frames"] == 3
+    assert err == [f"warning: {tmp_path / 'tum'}: 1 colour images without depth within 0.020 s skipped"]
+    # Co-Fusion without calibration.txt: the configured fallback intrinsics are used
+    fx.make_cofusion(tmp_path / "cf", calib=None)
+    fallback = [f"dataset.fallback_intrinsics.{k}={v}" for k, v in dict(fx=10, fy=10, cx=16, cy=12, width=fx.W, height=fx.H).items()]
+    status, err, out = _run_capturing(capsys, "dataset=room4", f"dataset.root={tmp_path / 'cf'}", *fallback)
+    assert status == 0 and json.loads(out)["frames"] == 3
+    assert err == [f"warning: {tmp_path / 'cf'}: calibration.txt missing, using the configured fallback intrinsics"]
+    # the data_modules loggers are back as they were
+    assert logging.getLogger("data_modules").propagate and not logging.getLogger("data_modules").handlers
+
+
+def test_warnings_then_one_line_error(tmp_path, capsys):
+    fx = _fixtures()
+    fx.make_klg(tmp_path / "t.klg", header_count=0)
+    status, err, out = _run_capturing(capsys, "dataset=teddy", f"dataset.root={tmp_path / 't.klg'}", "data.stride=0", "dataset.width=32",
+                                      "dataset.height=24", "dataset.cx=16", "dataset.cy=12")
+    assert status == 2 and out == ""
+    assert err == [f"warning: {tmp_path / 't.klg'}: header says 0 frames, found 3 (unfinished recording?); using all",
+                   "error: data.stride: must be >= 1, got 0"]
+
+
+def test_python_warnings_become_one_line(capsys):
+    import warnings
+
+    from data_modules.inspect import reader_warnings_on_stderr
+
+    with reader_warnings_on_stderr():
+        warnings.warn("cache: cannot write the frame cache\nsecond line")
+    assert capsys.readouterr().err == "warning: cache: cannot write the frame cache\n"
+
+
+def test_corrupt_image_gives_one_line_without_opencv_warnings(tmp_path, capfd):
+    # OpenCV writes its "[ WARN:0@...]" lines straight to file descriptor 2: capture at fd level
+    fx = _fixtures()
+    fx.make_folder(tmp_path / "rec", n=2, masks=False)
+    depth = tmp_path / "rec" / "depth" / "1.png"
+    depth.write_bytes(depth.read_bytes()[:60])  # a PNG cut inside its first chunk
+    status = fx.run_inspect_inprocess("dataset=folder", f"dataset.root={tmp_path / 'rec'}", "format=json")
+    err = capfd.readouterr().err.splitlines()
+    assert status == 2
+    assert err == [f"error: {depth}: cannot decode image (not a valid PNG/JPEG file?)"]

@@ -21,8 +21,10 @@ from data_modules.io import (  # noqa: E402
     read_pose_table,
     read_rgb,
     read_table,
+    read_tum_trajectory,
     require_dir,
     sanitize_depth,
+    write_tum_trajectory,
 )
 
 
@@ -172,11 +174,61 @@ def test_pose_table_malformed(tmp_path, line, pattern):
         read_pose_table(p)
 
 
+class TestTumTrajectory:
+    def test_write_read_round_trip(self, tmp_path):
+        rng = np.random.default_rng(12)
+        T = torch.from_numpy(np.stack([random_pose(rng) for _ in range(25)]))
+        T[:, :3, 3] *= 3.0
+        ts = 1305031102.175304 + np.cumsum(np.random.default_rng(0).uniform(0.02, 0.05, 25))
+        path = tmp_path / "traj.txt"
+        write_tum_trajectory(path, ts, T)
+        ts2, T2 = read_tum_trajectory(path)
+        assert ts2.dtype == np.float64 and T2.dtype == torch.float64 and T2.shape == (25, 4, 4)
+        assert np.abs(ts2 - ts).max() < 1e-6
+        assert (T2 - T).abs().max() < 1e-8
+        assert [p.name for p in tmp_path.iterdir()] == ["traj.txt"]  # atomic_write left no temporary file
+
+    def test_comments_blank_lines_and_commas(self, tmp_path):
+        path = tmp_path / "t.txt"
+        path.write_text("# timestamp tx ty tz qx qy qz qw\n\n  # indented comment\n1.0 1 2 3 0 0 0 1\n2.0,0,0,0,0,0,1,0\n")
+        ts, T = read_tum_trajectory(path)
+        assert ts.tolist() == [1.0, 2.0]
+        assert T[0, :3, 3].tolist() == [1.0, 2.0, 3.0]
+        assert torch.allclose(T[1, :3, :3], torch.diag(torch.tensor([-1.0, -1.0, 1.0], dtype=torch.float64)))
+
+    @pytest.mark.parametrize(
+        "bad",
+        ["1.0 1 2 3 0 0 0", "1.0 1 2 3 0 0 0 x", "1.0 1 2 nan 0 0 0 1", "1.0 1 2 3 0 0 0 0"],
+        ids=["seven_fields", "not_a_number", "nan", "zero_quaternion"],
+    )
+    def test_malformed_line_names_file_and_line(self, tmp_path, bad):
+        path = tmp_path / "bad.txt"
+        path.write_text(f"# header\n0.5 0 0 0 0 0 0 1\n{bad}\n")
+        with pytest.raises(DatasetError) as exc:
+            read_tum_trajectory(path)
+        assert exc.value.where == f"{path}:3"
+        assert "\n" not in str(exc.value)
+
+    def test_missing_file(self, tmp_path):
+        with pytest.raises(DatasetError, match="not found"):
+            read_tum_trajectory(tmp_path / "nope.txt")
+
+    def test_empty_file(self, tmp_path):
+        path = tmp_path / "empty.txt"
+        path.write_text("# only a comment\n")
+        with pytest.raises(DatasetError, match="no poses"):
+            read_tum_trajectory(path)
+
+    def test_length_mismatch(self, tmp_path):
+        with pytest.raises(ValueError):
+            write_tum_trajectory(tmp_path / "x.txt", [0.0, 1.0], torch.eye(4, dtype=torch.float64)[None])
+
+
 def test_intrinsics_files(tmp_path):
     (tmp_path / "c.txt").write_text("360 361 320 240 640 480\n")
     k = read_intrinsics_file(tmp_path / "c.txt")
     assert (k.fx, k.fy, k.cx, k.cy, k.width, k.height) == (360, 361, 320, 240, 640, 480)
-    (tmp_path / "c4.txt").write_text("360 360 320 240\n")
+    (tmp_path / "c4.txt").write_text("36 36 32 24\n")
     assert read_intrinsics_file(tmp_path / "c4.txt", width=64, height=48).width == 64
     with pytest.raises(DatasetError, match="image size unknown"):
         read_intrinsics_file(tmp_path / "c4.txt")

@@ -96,6 +96,14 @@ def test_defaults_are_teddy(tmp_path):
 # ----------------------------------------------------------------------------------- bad input
 
 
+def test_principal_point_outside_the_image(tmp_path):
+    make_klg(tmp_path / "a.klg")
+    with pytest.raises(DatasetError, match=rf"^dataset: principal point \(cx=5000, cy=12\) is outside the {W}x{H} image"):
+        KLGSequence(tmp_path / "a.klg", width=W, height=H, fx=20, fy=20, cx=5000, cy=12)
+    with pytest.raises(DatasetError, match=r"^dataset: principal point \(cx=320, cy=240\) is outside"):
+        KLGSequence(tmp_path / "a.klg", width=W, height=H)  # teddy defaults are for 640x480
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(DatasetError, match=r"teddy\.klg: KLG log not found"):
         _open(tmp_path / "teddy.klg")
@@ -138,7 +146,7 @@ def test_header_count_larger_than_file(tmp_path):
 def test_wrong_resolution(tmp_path):
     make_klg(tmp_path / "a.klg", modes=[("raw", "raw")])
     with pytest.raises(DatasetError, match=r"a\.klg: frame 0: depth size 1536 bytes is impossible for 16x12"):
-        KLGSequence(tmp_path / "a.klg", width=16, height=12)
+        KLGSequence(tmp_path / "a.klg", width=16, height=12, cx=8, cy=6)
 
 
 def test_bad_zlib_and_inflate_size(tmp_path):
@@ -182,6 +190,10 @@ def test_config_instantiates(tmp_path):
         instantiate_dataset("teddy", tmp_path / "wrong.klg")
 
 
+# the fixture's small image needs a principal point inside it (teddy.yaml is for 640x480)
+SMALL_CAMERA = (f"dataset.width={W}", f"dataset.height={H}", "dataset.fx=20", "dataset.fy=20", "dataset.cx=16", "dataset.cy=12")
+
+
 def test_inspect_summarize_and_cli(tmp_path, capsys):
     import json
 
@@ -197,7 +209,7 @@ def test_inspect_summarize_and_cli(tmp_path, capsys):
     assert s["valid_depth_pct"] == pytest.approx(100 * valid)
     assert s["duration_s"] == pytest.approx(2 * 0.033333)
     status = run_inspect_inprocess(
-        "dataset=teddy", f"dataset.root={tmp_path / 't.klg'}", f"dataset.width={W}", f"dataset.height={H}", "format=json"
+        "dataset=teddy", f"dataset.root={tmp_path / 't.klg'}", *SMALL_CAMERA, "format=json"
     )
     out = capsys.readouterr()
     assert status == 0, out.err
@@ -207,7 +219,7 @@ def test_inspect_summarize_and_cli(tmp_path, capsys):
     # truncated log: one line naming the file and the frame
     data = (tmp_path / "t.klg").read_bytes()
     (tmp_path / "t.klg").write_bytes(data[:-3])
-    status = run_inspect_inprocess("dataset=teddy", f"dataset.root={tmp_path / 't.klg'}", f"dataset.width={W}", f"dataset.height={H}")
+    status = run_inspect_inprocess("dataset=teddy", f"dataset.root={tmp_path / 't.klg'}", *SMALL_CAMERA)
     assert status == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: {tmp_path / 't.klg'}: frame 2: depth payload truncated")

@@ -1,4 +1,4 @@
-"""The data contract: Frame validation, Intrinsics, SequenceView and SequenceDataModule."""
+"""The data contract's sequences: SequenceDataset, SequenceView and SequenceDataModule."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from data_modules.frame import DatasetError, Frame, Intrinsics
-from data_modules.sequence import SequenceDataModule, SequenceDataset, SequenceView, check_monotonic_timestamps
+from data_modules.sequence import SequenceDataModule, SequenceDataset, SequenceView
 
 
 class _Ramp(SequenceDataset):
@@ -33,75 +33,6 @@ class _Ramp(SequenceDataset):
         pose = torch.eye(4, dtype=torch.float64)
         pose[0, 3] = i
         return Frame(i, float(self.timestamps[i]), rgb, depth, mask, pose).validate(f"ramp {i}", self.intrinsics)
-
-
-def _frame(h=4, w=5) -> Frame:
-    return Frame(0, 0.0, torch.full((h, w, 3), 0.5), torch.ones(h, w), torch.zeros(h, w, dtype=torch.bool), torch.eye(4))
-
-
-def test_valid_frame_passes():
-    f = _frame()
-    assert f.validate("x") is f
-    assert (f.height, f.width) == (4, 5)
-    f.validate("x", Intrinsics(5, 5, 2, 1.5, 5, 4))
-
-
-@pytest.mark.parametrize(
-    "change, message",
-    [
-        (dict(depth=torch.ones(4, 5, 1)), "depth must be"),
-        (dict(rgb=torch.full((4, 5), 0.5)), "rgb shape"),
-        (dict(rgb=torch.full((4, 6, 3), 0.5)), "does not match depth"),
-        (dict(depth=torch.ones(4, 5, dtype=torch.float64)), "float32"),
-        (dict(depth=torch.where(torch.eye(4, 5, dtype=torch.bool), float("nan"), 1.0)), "NaN"),
-        (dict(depth=-torch.ones(4, 5)), "negative"),
-        (dict(rgb=torch.full((4, 5, 3), 1.5)), r"\[0, 1\]"),
-        (dict(mask=torch.zeros(4, 5, dtype=torch.uint8)), "mask"),
-        (dict(mask=torch.zeros(3, 5, dtype=torch.bool)), "mask"),
-        (dict(gt_pose=torch.eye(3)), "gt_pose"),
-        (dict(gt_pose=torch.full((4, 4), float("inf"))), "gt_pose"),
-        (dict(timestamp=float("nan")), "timestamp"),
-    ],
-)
-def test_validate_rejects_bad_frames(change, message):
-    f = _frame()
-    for k, v in change.items():
-        setattr(f, k, v)
-    with pytest.raises(DatasetError, match=message) as err:
-        f.validate("frames/0001.png")
-    assert str(err.value).startswith("frames/0001.png: ") and "\n" not in str(err.value)
-
-
-def test_validate_checks_intrinsics_size():
-    with pytest.raises(DatasetError, match="intrinsics are for 6x4"):
-        _frame().validate("x", Intrinsics(5, 5, 2, 1.5, 6, 4))
-
-
-def test_intrinsics_checks_and_resize():
-    with pytest.raises(DatasetError, match="focal"):
-        Intrinsics(0, 1, 0, 0, 4, 4)
-    with pytest.raises(DatasetError, match="finite"):
-        Intrinsics(1, 1, float("nan"), 0, 4, 4)
-    with pytest.raises(DatasetError, match="size"):
-        Intrinsics(1, 1, 0, 0, 0, 4)
-    K = Intrinsics(500.0, 400.0, 319.5, 239.5, 640, 480)
-    half = K.resized(320, 240)
-    assert (half.fx, half.fy, half.cx, half.cy, half.width, half.height) == (250.0, 200.0, 159.5, 119.5, 320, 240)
-    assert K.resized(640, 480) == K
-    assert torch.equal(K.K(), torch.tensor([[500.0, 0, 319.5], [0, 400.0, 239.5], [0, 0, 1]]))
-    assert K.as_dict()["width"] == 640
-
-
-def test_check_monotonic_timestamps():
-    assert check_monotonic_timestamps([0.0, 0.1, 0.3], "t").dtype == np.float64
-    with pytest.raises(DatasetError, match="not strictly increasing at entry 2"):
-        check_monotonic_timestamps([0.0, 0.1, 0.1], "assoc.txt")
-    with pytest.raises(DatasetError, match="not strictly increasing"):
-        check_monotonic_timestamps([0.0, 0.2, 0.1], "assoc.txt")
-    with pytest.raises(DatasetError, match="not finite"):
-        check_monotonic_timestamps([0.0, float("nan")], "assoc.txt")
-    with pytest.raises(DatasetError, match="1-D"):
-        check_monotonic_timestamps([[0.0, 1.0]], "assoc.txt")
 
 
 def test_view_stride_and_max_frames():

@@ -9,7 +9,8 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fixtures import H, W, make_tum, random_pose, write_png_rgb  # noqa: E402
+import fixtures  # noqa: E402
+from fixtures import TUM_H, TUM_W, make_tum, random_pose, write_png_rgb  # noqa: E402
 
 from data_modules.frame import DatasetError  # noqa: E402
 from data_modules.tum import (  # noqa: E402
@@ -18,11 +19,10 @@ from data_modules.tum import (  # noqa: E402
     T_ROS,
     BonnSequence,
     TUMSequence,
-    associate,
-    interpolate_poses,
 )
 
 T0 = 1341846313.5
+W, H = TUM_W, TUM_H  # the camera presets' image size
 
 
 def _rot(axis, angle):
@@ -60,13 +60,6 @@ def test_max_time_diff_configurable(tmp_path):
     assert len(TUMSequence(tmp_path / "s", max_time_diff=0.012)) == 2
 
 
-def test_associate_is_greedy_and_unique():
-    a = np.array([0.0, 0.01, 0.1])
-    b = np.array([0.008, 0.5])
-    assert associate(a, b, 0.02) == [(1, 0)]  # 0.01 is closer to 0.008 than 0.0 is
-    assert associate([0.0, 1.0], [0.015, 0.99], 0.02) == [(0, 0), (1, 1)]
-
-
 def test_camera_presets_and_overrides(tmp_path):
     make_tum(tmp_path / "s", n=2)
     k = TUMSequence(tmp_path / "s", camera="fr1", undistort=False).intrinsics
@@ -82,7 +75,7 @@ def test_camera_presets_and_overrides(tmp_path):
 
 
 def test_undistort_matches_opencv(tmp_path):
-    truth = make_tum(tmp_path / "s", n=2)
+    truth = make_tum(tmp_path / "s", n=2, size=(fixtures.W, fixtures.H))  # small image, custom K
     dist = [0.3, -0.1, 0.01, -0.01, 0.0]
     kw = dict(camera="custom", fx=20.0, fy=20.0, cx=15.5, cy=11.5, distortion=dist)
     raw = TUMSequence(tmp_path / "s", undistort=False, **kw)[0]
@@ -122,14 +115,6 @@ def test_gt_starting_late_is_not_extrapolated(tmp_path):
     gt = [(T0 + 0.02, np.eye(4)), (T0 + 0.1, np.eye(4))]
     make_tum(tmp_path / "s", n=3, gt=gt)
     assert TUMSequence(tmp_path / "s").gt_valid.tolist() == [False, True, True]
-
-
-def test_interpolate_poses_exact_hits_and_outside():
-    P = torch.from_numpy(np.stack([random_pose(np.random.default_rng(i)) for i in range(3)]))
-    out, valid = interpolate_poses([0.0, 1.0, 2.0], P, [-0.5, 0.0, 2.0, 2.5], max_gap=0.1)
-    assert valid.tolist() == [False, True, True, False]
-    np.testing.assert_allclose(out[1].numpy(), P[0].numpy())
-    np.testing.assert_allclose(out[2].numpy(), P[2].numpy())
 
 
 def test_bonn_marker_to_camera(tmp_path):
@@ -214,6 +199,21 @@ def test_malformed_list_and_groundtruth(tmp_path):
     (tmp_path / "s" / "rgb.txt").write_text("# c\nabc rgb/x.png\n")
     with pytest.raises(DatasetError, match=r"rgb\.txt:2: bad timestamp 'abc'"):
         TUMSequence(tmp_path / "s")
+
+
+def test_principal_point_outside_the_image(tmp_path, capsys):
+    from fixtures import run_inspect_inprocess
+
+    make_tum(tmp_path / "s", n=2)
+    with pytest.raises(DatasetError, match=r"^dataset \(camera fr3\): principal point \(cx=5000, cy=247\.6\) is outside the 640x480 image"):
+        TUMSequence(tmp_path / "s", cx=5000)
+    make_tum(tmp_path / "small", n=2, size=(80, 60))  # fr3 intrinsics on a downscaled recording
+    with pytest.raises(DatasetError, match=r"^dataset \(camera fr3\): principal point \(cx=320\.1, cy=247\.6\) is outside the 80x60"):
+        TUMSequence(tmp_path / "small")
+    # end to end: one line, exit 2 (it used to run to an identity trajectory)
+    assert run_inspect_inprocess("dataset=tum", f"dataset.root={tmp_path / 's'}", "dataset.cx=5000") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["error: dataset (camera fr3): principal point (cx=5000, cy=247.6) is outside the 640x480 image (intrinsics for another image size?)"]
 
 
 def test_no_association(tmp_path):

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 import torch
 from torch.autograd import gradcheck
 
-from data_modules.frame import DatasetError, Intrinsics
+from data_modules.frame import Intrinsics
 from tivne import geometry as G
 
 F64 = torch.float64
@@ -205,98 +204,18 @@ class TestSe3ExpLog:
         assert gradcheck(G.se3_log, (T.detach().requires_grad_(),), eps=1e-6, atol=1e-5)
 
 
-class TestQuaternion:
-    def test_identity(self):
-        assert torch.allclose(G.quat_to_matrix(torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=F64)), torch.eye(3, dtype=F64))
-        assert torch.allclose(G.matrix_to_quat(torch.eye(3, dtype=F64)), torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=F64))
+class TestDataLayerReExports:
+    def test_pose_helpers_are_the_data_layer_functions(self):
+        from data_modules import poses
 
-    def test_round_trip_sign_canonicalised(self):
-        gen = torch.Generator().manual_seed(10)
-        q = torch.randn(200, 4, generator=gen, dtype=F64)
-        q = q / q.norm(dim=-1, keepdim=True)
-        assert (q[:, 3] < 0).any()
-        R = G.quat_to_matrix(q)
-        assert torch.allclose(R @ R.transpose(-1, -2), torch.eye(3, dtype=F64).expand(200, 3, 3), atol=1e-12)
-        assert torch.allclose(torch.linalg.det(R), torch.ones(200, dtype=F64))
-        q2 = G.matrix_to_quat(R)
-        assert torch.all(q2[:, 3] >= 0)
-        canonical = torch.where(q[:, 3:4] < 0, -q, q)
-        assert torch.allclose(q2, canonical, atol=1e-12)
+        for name in ("quat_to_matrix", "matrix_to_quat", "pose_from_tq", "orthonormalize_pose"):
+            assert getattr(G, name) is getattr(poses, name), name
 
-    def test_non_unit_quaternion_is_normalised(self):
-        q = torch.tensor([0.1, -0.2, 0.3, 0.9], dtype=F64)
-        assert torch.allclose(G.quat_to_matrix(7.5 * q), G.quat_to_matrix(q))
-        assert torch.allclose(G.matrix_to_quat(G.quat_to_matrix(7.5 * q)), q / q.norm(), atol=1e-12)
+    def test_trajectory_files_are_the_data_layer_functions(self):
+        from data_modules import io
 
-    @pytest.mark.parametrize("eps", [0.0, 1e-9, 1e-5])
-    def test_near_180_degrees(self, eps):
-        gen = torch.Generator().manual_seed(11)
-        axis = torch.randn(50, 3, generator=gen, dtype=F64)
-        axis = axis / axis.norm(dim=-1, keepdim=True)
-        half = 0.5 * (math.pi - eps)
-        q = torch.cat([axis * math.sin(half), torch.full((50, 1), math.cos(half), dtype=F64)], -1)
-        q2 = G.matrix_to_quat(G.quat_to_matrix(q))
-        assert torch.allclose(q2.norm(dim=-1), torch.ones(50, dtype=F64))
-        # qw ~ 0: the sign is only defined up to +-; the rotation must round-trip exactly.
-        same = torch.minimum((q2 - q).norm(dim=-1), (q2 + q).norm(dim=-1))
-        assert same.max() < 1e-9
-        assert torch.allclose(G.quat_to_matrix(q2), G.quat_to_matrix(q), atol=1e-12)
-
-    def test_pose_from_tq(self):
-        T = G.pose_from_tq(torch.tensor([1.0, 2.0, 3.0], dtype=F64), torch.tensor([0.0, 0.0, 0.0, 2.0], dtype=F64))
-        expected = torch.eye(4, dtype=F64)
-        expected[:3, 3] = torch.tensor([1.0, 2.0, 3.0], dtype=F64)
-        assert torch.allclose(T, expected)
-
-
-class TestTumTrajectory:
-    def test_write_read_round_trip(self, tmp_path):
-        gen = torch.Generator().manual_seed(12)
-        T = random_poses(25, gen)
-        T[:, :3, 3] *= 3.0
-        ts = 1305031102.175304 + np.cumsum(np.random.default_rng(0).uniform(0.02, 0.05, 25))
-        path = tmp_path / "traj.txt"
-        G.write_tum_trajectory(path, ts, T)
-        ts2, T2 = G.read_tum_trajectory(path)
-        assert ts2.dtype == np.float64 and T2.dtype == F64 and T2.shape == (25, 4, 4)
-        assert np.abs(ts2 - ts).max() < 1e-6
-        assert (T2 - T).abs().max() < 1e-8
-        assert not (tmp_path / "traj.txt.tmp").exists()
-
-    def test_comments_blank_lines_and_commas(self, tmp_path):
-        path = tmp_path / "t.txt"
-        path.write_text("# timestamp tx ty tz qx qy qz qw\n\n  # indented comment\n1.0 1 2 3 0 0 0 1\n2.0,0,0,0,0,0,1,0\n")
-        ts, T = G.read_tum_trajectory(path)
-        assert ts.tolist() == [1.0, 2.0]
-        assert T[0, :3, 3].tolist() == [1.0, 2.0, 3.0]
-        assert torch.allclose(T[1, :3, :3], torch.diag(torch.tensor([-1.0, -1.0, 1.0], dtype=F64)))
-
-    @pytest.mark.parametrize(
-        "bad",
-        ["1.0 1 2 3 0 0 0", "1.0 1 2 3 0 0 0 x", "1.0 1 2 nan 0 0 0 1", "1.0 1 2 3 0 0 0 0"],
-        ids=["seven_fields", "not_a_number", "nan", "zero_quaternion"],
-    )
-    def test_malformed_line_names_file_and_line(self, tmp_path, bad):
-        path = tmp_path / "bad.txt"
-        path.write_text(f"# header\n0.5 0 0 0 0 0 0 1\n{bad}\n")
-        with pytest.raises(DatasetError) as exc:
-            G.read_tum_trajectory(path)
-        assert exc.value.where == f"{path}:3"
-        assert "\n" not in str(exc.value)
-
-    def test_missing_file(self, tmp_path):
-        with pytest.raises(DatasetError, match="not found"):
-            G.read_tum_trajectory(tmp_path / "nope.txt")
-
-    def test_empty_file(self, tmp_path):
-        path = tmp_path / "empty.txt"
-        path.write_text("# only a comment\n")
-        with pytest.raises(DatasetError, match="no poses"):
-            G.read_tum_trajectory(path)
-
-    def test_length_mismatch(self, tmp_path):
-        with pytest.raises(ValueError):
-            G.write_tum_trajectory(tmp_path / "x.txt", [0.0, 1.0], torch.eye(4, dtype=F64)[None])
+        assert G.read_tum_trajectory is io.read_tum_trajectory
+        assert G.write_tum_trajectory is io.write_tum_trajectory
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA not available")

@@ -15,6 +15,9 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
+# The one timestamp association (TUM associate.py, |dt| <= max_diff) lives in the data layer.
+from data_modules.timestamps import associate_by_timestamp
+
 ArrayLike = np.ndarray | torch.Tensor
 Alignment = Literal["se3", "sim3", "none"]
 
@@ -29,55 +32,6 @@ def _as_np64(x: ArrayLike) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 # Association
 # --------------------------------------------------------------------------------------------------
-
-
-def associate_by_timestamp(
-    ts_est: ArrayLike, ts_ref: ArrayLike, max_diff: float = 0.02
-) -> tuple[np.ndarray, np.ndarray]:
-    """One-to-one nearest-timestamp association, as TUM's ``associate.py``.
-
-    All pairs with ``|ts_est[i] - ts_ref[j]| <= max_diff`` are candidates; they are accepted greedily
-    by increasing time difference, each timestamp being used at most once.
-
-    Args:
-        ts_est: (N,) seconds, any order.
-        ts_ref: (M,) seconds, any order.
-        max_diff: largest accepted time difference in seconds (inclusive).
-    Returns:
-        idx_est (K,) and idx_ref (K,) int64 indices of the matched pairs, sorted by ``idx_est``.
-    """
-    a = _as_np64(ts_est).reshape(-1)
-    b = _as_np64(ts_ref).reshape(-1)
-    empty = np.zeros(0, dtype=np.int64)
-    if len(a) == 0 or len(b) == 0:
-        return empty, empty.copy()
-    order = np.argsort(b, kind="stable")
-    b_sorted = b[order]
-    # Candidate window of every estimate in the sorted reference: [lo, hi).
-    lo = np.searchsorted(b_sorted, a - max_diff, side="left")
-    hi = np.searchsorted(b_sorted, a + max_diff, side="right")
-    counts = hi - lo
-    cand_est = np.repeat(np.arange(len(a)), counts)
-    # Position inside each window: running index minus the window's start in the flattened list.
-    starts = np.repeat(np.cumsum(counts) - counts, counts)
-    cand_ref_sorted = np.repeat(lo, counts) + (np.arange(counts.sum()) - starts)
-    cand_ref = order[cand_ref_sorted]
-    diff = np.abs(a[cand_est] - b[cand_ref])
-    keep = diff <= max_diff  # the window edges are exact already; this guards float rounding
-    cand_est, cand_ref, diff = cand_est[keep], cand_ref[keep], diff[keep]
-    # Greedy by smallest difference; ties broken by estimate then reference index (deterministic).
-    used_est = np.zeros(len(a), dtype=bool)
-    used_ref = np.zeros(len(b), dtype=bool)
-    pairs = []
-    for k in np.lexsort((cand_ref, cand_est, diff)):
-        i, j = cand_est[k], cand_ref[k]
-        if not used_est[i] and not used_ref[j]:
-            used_est[i] = used_ref[j] = True
-            pairs.append((i, j))
-    if not pairs:
-        return empty, empty.copy()
-    idx = np.array(sorted(pairs), dtype=np.int64)
-    return idx[:, 0], idx[:, 1]
 
 
 def associate_by_index(n_est: int, n_ref: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,153 @@
+"""Rigid-pose helpers the readers need: quaternions, poses from files, SO(3) projection, SLERP.
+
+Conventions: poses are 4x4 matrices (camera-to-world for camera poses); quaternions are in TUM
+order ``(qx, qy, qz, qw)``, scalar last. Pure functions on batched tensors (shapes in docstrings);
+:func:`interpolate_poses` takes its time axes as numpy float64 arrays, as the readers hold them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+# A query this close to a sample time takes that sample's pose. Trajectory files round timestamps
+# (6 decimals is usual) while frame times may not be (index / fps), so the last frame can land a
+# microsecond after the last pose; 0.1 ms is far above that rounding and far below a frame period.
+TIME_TOLERANCE_S = 1e-4
+
+
+def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    """Quaternions (..., 4) in TUM order (qx, qy, qz, qw) -> rotation matrices (..., 3, 3).
+
+    The quaternion is normalised first, so slightly off-unit file values are accepted.
+    """
+    q = q / q.norm(dim=-1, keepdim=True)
+    x, y, z, w = q.unbind(-1)
+    row0 = torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1)
+    row1 = torch.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1)
+    row2 = torch.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)
+    return torch.stack([row0, row1, row2], dim=-2)
+
+
+def matrix_to_quat(R: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) (qx, qy, qz, qw) with qw >= 0.
+
+    Uses the numerically stable branch on the largest diagonal term (Shepperd's method).
+    """
+    m = R
+    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    cands = torch.stack(
+        [
+            torch.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1], 1 + trace], -1),
+            torch.stack([1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2], m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] - m[..., 1, 2]], -1),
+            torch.stack([m[..., 0, 1] + m[..., 1, 0], 1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2], m[..., 1, 2] + m[..., 2, 1], m[..., 0, 2] - m[..., 2, 0]], -1),
+            torch.stack([m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], 1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2], m[..., 1, 0] - m[..., 0, 1]], -1),
+        ],
+        dim=-2,
+    )  # (..., 4 candidates, 4) each proportional to (x, y, z, w)
+    key = torch.stack([trace, m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]], -1)
+    best = key.argmax(-1)
+    q = torch.gather(cands, -2, best[..., None, None].expand(*best.shape, 1, 4))[..., 0, :]
+    q = q / q.norm(dim=-1, keepdim=True)
+    return torch.where(q[..., 3:4] < 0, -q, q)
+
+
+def pose_from_tq(t: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """Translation (..., 3) + quaternion (..., 4) (qx, qy, qz, qw) -> (..., 4, 4) pose in t's dtype."""
+    T = torch.zeros(*t.shape[:-1], 4, 4, dtype=t.dtype, device=t.device)
+    T[..., :3, :3] = quat_to_matrix(q.to(t.dtype))
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def orthonormalize_pose(T: torch.Tensor) -> torch.Tensor:
+    """Project the rotation block of (..., 4, 4) transforms onto SO(3); keep the translation.
+
+    The nearest rotation in Frobenius norm (SVD, R = U Vᵀ with the sign of U's last column chosen so
+    that det R = +1). Pose chains such as T1 · T2⁻¹ · T1 (inverse taken as Rᵀ) double a rotation's
+    non-orthogonality every time, and hand-typed calibration matrices are rarely orthonormal.
+
+    Args:
+        T: (..., 4, 4) float32 or float64.
+    Returns:
+        (..., 4, 4) in T's dtype with last row (0, 0, 0, 1).
+    """
+    # float64 inside: the SVD of a nearly orthonormal float32 matrix loses the digits we want to fix.
+    U, _, Vh = torch.linalg.svd(T[..., :3, :3].double())
+    # where(), not sign(): a det of exactly 0 (rank-deficient input) must not zero a column.
+    d = torch.where(torch.det(U @ Vh) < 0, -1.0, 1.0).to(U.dtype)
+    U = torch.cat([U[..., :, :2], U[..., :, 2:] * d[..., None, None]], dim=-1)
+    out = T.clone()
+    out[..., :3, :3] = (U @ Vh).to(T.dtype)
+    out[..., 3, :3] = 0
+    out[..., 3, 3] = 1
+    return out
+
+
+def slerp_quat(qa: torch.Tensor, qb: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+    """Spherical linear interpolation of unit quaternions along the shorter arc.
+
+    Args:
+        qa, qb: (..., 4) unit quaternions (any order of components, as long as both agree).
+        s: (...) fraction in [0, 1]; 0 gives qa, 1 gives qb (up to sign).
+    Returns:
+        (..., 4) unit quaternions.
+    """
+    dot = (qa * qb).sum(-1)
+    qb = torch.where(dot[..., None] < 0, -qb, qb)  # q and -q are the same rotation: take the short way
+    dot = dot.abs().clamp(max=1.0)
+    theta = torch.arccos(dot)
+    nearly_equal = dot > 0.9995  # sin(theta) ~ 0: plain lerp is exact enough and avoids 0/0
+    sin_theta = torch.where(nearly_equal, torch.ones_like(theta), torch.sin(theta))
+    wa = torch.where(nearly_equal, 1 - s, torch.sin((1 - s) * theta) / sin_theta)
+    wb = torch.where(nearly_equal, s, torch.sin(s * theta) / sin_theta)
+    q = wa[..., None] * qa + wb[..., None] * qb
+    return q / q.norm(dim=-1, keepdim=True)
+
+
+def interpolate_poses(
+    times: np.ndarray,
+    poses: torch.Tensor,
+    query: np.ndarray,
+    max_gap: float | None = None,
+    tolerance: float = TIME_TOLERANCE_S,
+) -> tuple[torch.Tensor, np.ndarray]:
+    """Poses at ``query`` times: SLERP rotation + linear translation between bracketing samples.
+
+    Args:
+        times: (N,) strictly increasing sample times [s].
+        poses: (N, 4, 4) poses at ``times``.
+        query: (M,) times to evaluate [s].
+        max_gap: the bracketing samples may be at most this far apart (None = any).
+        tolerance: a query within this many seconds of a sample time takes that sample's pose and
+            is always valid, also just outside [times[0], times[-1]] (rounded file timestamps).
+    Returns:
+        (M, 4, 4) float64 poses (identity where invalid) and (M,) bool ``valid``: False outside
+        [times[0] - tolerance, times[-1] + tolerance] or inside a longer gap. Nothing is extrapolated.
+    """
+    times = np.asarray(times, dtype=np.float64)
+    query = np.asarray(query, dtype=np.float64)
+    poses = torch.as_tensor(poses, dtype=torch.float64)
+    m, n = len(query), len(times)
+    out = torch.eye(4, dtype=torch.float64).repeat(m, 1, 1)
+    valid = np.zeros(m, dtype=bool)
+    if n == 0 or m == 0:
+        return out, valid
+    after = np.searchsorted(times, query, side="left")  # first sample at or after each query
+    lo, hi = np.clip(after - 1, 0, n - 1), np.clip(after, 0, n - 1)
+    nearest = np.where(np.abs(times[lo] - query) <= np.abs(times[hi] - query), lo, hi)
+    snap = np.abs(times[nearest] - query) <= tolerance
+    inside = (after > 0) & (after < n) & ~snap
+    if max_gap is not None:
+        inside &= (times[hi] - times[lo]) <= max_gap
+    out[torch.from_numpy(snap)] = poses[torch.from_numpy(nearest[snap])]
+    if inside.any():
+        a, b = lo[inside], hi[inside]
+        s = torch.from_numpy((query[inside] - times[a]) / (times[b] - times[a]))  # (K,) in (0, 1)
+        a, b, rows = torch.from_numpy(a), torch.from_numpy(b), torch.from_numpy(inside)
+        quats = matrix_to_quat(poses[:, :3, :3])
+        out[rows, :3, :3] = quat_to_matrix(slerp_quat(quats[a], quats[b], s))
+        out[rows, :3, 3] = (1 - s)[:, None] * poses[a, :3, 3] + s[:, None] * poses[b, :3, 3]
+    valid[snap | inside] = True
+    return out, valid
