@@ -1,10 +1,9 @@
-"""Process-level CPU settings measured to matter on small CPUs (see bench/README.md)."""
+"""Process-level CPU settings measured to matter on small CPUs: threads and the glibc allocator."""
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
-import os
 
 import torch
 
@@ -31,9 +30,10 @@ def tune_allocator() -> bool:
 
 
 def configure_runtime(threads: int | None = None, allocator: bool = True) -> dict[str, object]:
-    """Set torch's thread count (None = leave it) and the allocator; returns what was applied."""
-    # Spinning OpenMP workers are catastrophic when another process shares the cores.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    """Set torch's thread count (None = leave it) and the allocator; returns what was applied.
+
+    (OpenMP's wait policy is set where it takes effect: in ``tivne/__init__.py``, before torch loads.)
+    """
     if threads:
         torch.set_num_threads(int(threads))
     return {"threads": torch.get_num_threads(), "allocator_tuned": tune_allocator() if allocator else False}

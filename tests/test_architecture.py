@@ -1,0 +1,132 @@
+"""The layout rules of docs/architecture.md, checked on the source: layers, no import cycles, thin
+CLIs, small modules and functions. Imports inside functions count too."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("data_modules", "tivne")
+MAX_MODULE_LINES = 450
+MAX_FUNCTION_LINES = 80
+
+# Bottom-up. A module may import modules of its own layer entry (its package) or of lower entries.
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("data_modules",),
+    ("tivne", "tivne.config", "tivne.utils"),
+    ("tivne.geometry",),
+    ("tivne.metrics",),
+    ("tivne.field",),
+    ("tivne.render",),
+    ("tivne.meshing",),
+    ("tivne.masks",),
+    ("tivne.slam",),
+    ("tivne.evaluation",),
+    ("tivne.cli",),
+)
+# Command-line entry points: on top of everything, imported by no module.
+CLIS = {"tivne.train", "tivne.mesh", "tivne.evaluate", "tivne.make_masks", "tivne.collect", "tivne.report", "data_modules.inspect"}
+# The pure metrics may use nothing of tivne but geometry.
+METRICS_MAY_IMPORT = ("tivne.geometry", "tivne.metrics")
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(REPO).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def sources() -> dict[str, Path]:
+    return {module_name(p): p for pkg in PACKAGES for p in sorted((REPO / pkg).rglob("*.py"))}
+
+
+def imports_of(path: Path, known: set[str]) -> set[str]:
+    """Project modules that ``path`` imports anywhere in its body (resolved to known modules)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        names: list[str] = []
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+        for name in names:
+            while name and name not in known:
+                name = name.rpartition(".")[0]
+            if name:
+                found.add(name)
+    return found
+
+
+def layer_of(module: str) -> int:
+    best, rank = -1, -1
+    for i, entry in enumerate(LAYERS):
+        for prefix in entry:
+            if (module == prefix or module.startswith(prefix + ".")) and len(prefix) > best:
+                best, rank = len(prefix), i
+    return rank
+
+
+GRAPH = {m: imports_of(p, set(sources())) - {m} for m, p in sources().items()}
+
+
+def test_every_module_has_a_layer():
+    assert [m for m in GRAPH if m not in CLIS and layer_of(m) < 0] == []
+
+
+def test_no_module_imports_a_higher_layer():
+    bad = [
+        f"{m} -> {d}"
+        for m, deps in GRAPH.items()
+        if m not in CLIS
+        for d in deps
+        if d not in CLIS and layer_of(d) > layer_of(m)
+    ]
+    assert bad == []
+
+
+def test_clis_are_imported_by_nothing():
+    assert [f"{m} -> {d}" for m, deps in GRAPH.items() for d in deps if d in CLIS] == []
+
+
+def test_metrics_import_only_geometry():
+    bad = [f"{m} -> {d}" for m, deps in GRAPH.items() if m.startswith("tivne.metrics") for d in deps
+           if d.startswith("tivne") and not d.startswith(METRICS_MAY_IMPORT)]
+    assert bad == []
+
+
+def test_no_import_cycles():
+    state: dict[str, int] = {}
+    cycles: list[list[str]] = []
+
+    def visit(m: str, stack: list[str]) -> None:
+        state[m] = 1
+        for d in sorted(GRAPH.get(m, ())):
+            if d.startswith(m + "."):
+                continue  # a package's __init__ re-exporting its own modules
+            if state.get(d) == 1:
+                cycles.append(stack[stack.index(d):] + [d] if d in stack else [m, d])
+            elif d not in state:
+                visit(d, stack + [d])
+        state[m] = 2
+
+    for m in sorted(GRAPH):
+        if m not in state:
+            visit(m, [m])
+    assert cycles == []
+
+
+@pytest.mark.parametrize("module", sorted(sources()))
+def test_module_and_function_size(module):
+    path = sources()[module]
+    text = path.read_text()
+    assert len(text.splitlines()) <= MAX_MODULE_LINES, f"{path.relative_to(REPO)} has {len(text.splitlines())} lines"
+    long = [
+        f"{node.name} ({node.end_lineno - node.lineno + 1} lines)"
+        for node in ast.walk(ast.parse(text))
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES
+    ]
+    assert long == [], f"{path.relative_to(REPO)}: {long}"
