@@ -76,7 +76,7 @@ def compose(name: str, args: argparse.Namespace):
         f"data.max_frames={args.frames}",
         "output.evaluate=false",
         "output.image_every=0",
-        "output.mesh_resolution=0.1",
+        "mesh.resolution=0.1",
         "trainer.progress_bar=false",
         f"runtime.threads={args.threads}",
         *[o.split(":", 1)[1] if ":" in o.split("=", 1)[0] else o for o in args.set
