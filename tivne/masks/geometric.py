@@ -8,15 +8,9 @@ import numpy as np
 import torch
 
 from data_modules.frame import Frame
+from data_modules.sensor import kinect_depth_sigma
 from tivne.masks.base import MaskContext, MaskProvider
 from tivne.render.rays import rays_from_pixels
-
-
-
-
-def depth_sigma(z: torch.Tensor) -> torch.Tensor:
-    """Kinect-like axial depth noise σ(z) = 0.0012 + 0.0019 (z - 0.4)² metres (Nguyen et al. 2012)."""
-    return 0.0012 + 0.0019 * (z - 0.4).pow(2)
 
 
 def residual_seeds(
@@ -40,7 +34,7 @@ def residual_seeds(
     Returns:
         (H, W) bool.
     """
-    thr = torch.clamp(k_sigma * depth_sigma(observed), min=abs_threshold)
+    thr = torch.clamp(k_sigma * kinect_depth_sigma(observed), min=abs_threshold)
     valid = known & (observed > 0)
     seeds = valid & (rendered - observed > thr)
     if color_residual is not None and color_threshold is not None and color_threshold > 0:
@@ -249,13 +243,13 @@ def free_space_seeds(
     d_ref = torch.zeros_like(z)
     d_ref[inb] = dmin[vr[inb], ur[inb]]
     known = inb & torch.isfinite(d_ref) & (depth.reshape(-1) > 0)
-    thr = torch.clamp(k_sigma * depth_sigma(d_ref.clamp(max=20.0)), min=abs_threshold)
+    thr = torch.clamp(k_sigma * kinect_depth_sigma(d_ref.clamp(max=20.0)), min=abs_threshold)
     seeds = known & (z < d_ref - thr)
     d_centre = torch.zeros_like(z)
     d_centre[inb] = ref_depth[vr[inb], ur[inb]]
     scored = known & (d_centre > 0)
     residual = torch.full_like(z, float("nan"))
-    residual[scored] = (z[scored] - d_centre[scored]) / depth_sigma(d_centre[scored])
+    residual[scored] = (z[scored] - d_centre[scored]) / kinect_depth_sigma(d_centre[scored])
     return seeds.view(h, w), known.view(h, w), residual.view(h, w)
 
 
