@@ -1,52 +1,20 @@
-"""Masks from a folder of PNGs, one per frame (nonzero = dynamic), and the PNG reader/writer."""
+"""Masks from a folder of PNGs, one per frame (nonzero = dynamic); the PNGs are read and written by
+:func:`data_modules.io.read_mask_png` / :func:`data_modules.io.write_mask_png`."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from data_modules.frame import DatasetError, Frame
-from data_modules.io import atomic_write
+from data_modules.io import read_mask_png
 from tivne.masks.base import MaskContext, MaskProvider
-
-
 
 
 def mask_file_name(index: int) -> str:
     """The file name :mod:`tivne.make_masks` writes for frame ``index`` (e.g. ``000123.png``)."""
     return f"{index:06d}.png"
-
-
-def read_mask_png(path: str | Path, size: tuple[int, int] | None = None) -> torch.Tensor:
-    """Read a mask PNG (nonzero = dynamic) as (H, W) bool; ``size`` = (width, height) to check.
-
-    Raises :class:`DatasetError` (one line naming the file) when it is unreadable or the wrong size.
-    """
-    import cv2
-
-    path = Path(path)
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise DatasetError(path, "mask is not a readable image")
-    if img.ndim == 3:
-        img = img.max(axis=2)
-    if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
-        raise DatasetError(path, f"mask is {img.shape[1]}x{img.shape[0]} but the frame is {size[0]}x{size[1]}")
-    return torch.from_numpy(np.ascontiguousarray(img != 0))
-
-
-def write_mask_png(path: str | Path, mask: torch.Tensor | np.ndarray) -> None:
-    """Write an (H, W) bool mask as an 8-bit PNG (255 = dynamic), atomically (tmp file + rename)."""
-    import cv2
-
-    path = Path(path)
-    arr = mask.detach().cpu().numpy() if isinstance(mask, torch.Tensor) else np.asarray(mask)
-    ok, buf = cv2.imencode(".png", (arr.astype(bool) * 255).astype(np.uint8))
-    if not ok:
-        raise OSError(f"{path}: could not encode the mask")
-    atomic_write(path, buf.tobytes())
 
 
 class FolderMasks(MaskProvider):
@@ -101,6 +69,5 @@ class FolderMasks(MaskProvider):
             if self.missing == "none":
                 return None
             raise DatasetError(path, f"mask for frame {frame.index} not found")
-        return read_mask_png(path, (frame.width, frame.height)).to(frame.depth.device)
-
-
+        mask = read_mask_png(path, (frame.width, frame.height))
+        return torch.from_numpy(mask).to(frame.depth.device)

@@ -10,9 +10,10 @@ import pytest
 import torch
 
 from data_modules.frame import DatasetError, Frame, Intrinsics
+from data_modules.io import write_mask_png
 from tivne.make_masks import make_masks
 from tivne.masks.base import DatasetMasks, MaskContext, NoMasks, RecordingMasks
-from tivne.masks.folder import FolderMasks, read_mask_png, write_mask_png
+from tivne.masks.folder import FolderMasks
 from tivne.masks.geometric import (
     GeometricMasks,
     clean_mask,
@@ -94,7 +95,7 @@ def test_folder_masks_clear_errors(tmp_path):
         provider(make_frame(3), None)
     assert FolderMasks(str(tmp_path), missing="none")(make_frame(3), None) is None
     (tmp_path / "000004.png").write_bytes(b"not a png")
-    with pytest.raises(DatasetError, match=r"000004\.png: mask is not a readable image"):
+    with pytest.raises(DatasetError, match=r"000004\.png: cannot decode image"):
         provider(make_frame(4), None)
     write_mask_png(tmp_path / "000005.png", torch.zeros(10, 10, dtype=torch.bool))
     with pytest.raises(DatasetError, match=r"000005\.png: mask is 10x10 but the frame is 64x48"):
