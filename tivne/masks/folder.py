@@ -21,8 +21,9 @@ class FolderMasks(MaskProvider):
     """Masks from a folder of PNGs (nonzero = dynamic), one per frame.
 
     ``match='index'``: ``<root>/<index:06d>.png`` (what ``python -m tivne.make_masks`` writes; also
-    accepts any zero padding, e.g. ``123.png``). ``match='stem'``: the frame's source file stem, taken
-    from ``frame.name`` / ``frame.path`` / ``frame.source`` when the reader sets one, else the index.
+    accepts any zero padding, e.g. ``123.png``). ``match='stem'``: ``<root>/<stem>.png`` with the stem
+    of the colour image the frame was read from (``Frame.source``); a frame without one (a KLG log,
+    the synthetic cube) is a one-line :class:`DatasetError`, never a silent fall back to the index.
     ``missing='error'`` raises a one-line :class:`DatasetError` naming the file; ``'none'`` gives None.
     """
 
@@ -47,14 +48,17 @@ class FolderMasks(MaskProvider):
         return self._by_stem
 
     def path_for(self, frame: Frame) -> Path:
+        """The mask file of ``frame`` (it may not exist)."""
         stems = self._stems()
         if self.match == "stem":
-            for attr in ("name", "path", "source", "rgb_path"):
-                value = getattr(frame, attr, None)
-                if value:
-                    stem = Path(str(value)).stem
-                    if stem in stems:
-                        return stems[stem]
+            if frame.source is None:
+                raise DatasetError(
+                    "masks.match",
+                    f"'stem' needs the file each frame was read from, but frame {frame.index} has none"
+                    " (its dataset has no file per frame); use match=index",
+                )
+            stem = Path(frame.source).stem
+            return stems.get(stem, self.root / f"{stem}{self.suffix}")
         exact = self.root / mask_file_name(frame.index)
         if exact.exists():
             return exact

@@ -13,7 +13,7 @@ from data_modules.frame import DatasetError, Frame, Intrinsics
 from data_modules.io import write_mask_png
 from tivne.make_masks import make_masks
 from tivne.masks.base import DatasetMasks, MaskContext, NoMasks, RecordingMasks
-from tivne.masks.folder import FolderMasks
+from tivne.masks.folder import FolderMasks, mask_file_name
 from tivne.masks.geometric import (
     GeometricMasks,
     clean_mask,
@@ -85,8 +85,40 @@ def test_folder_masks_by_index_and_stem(tmp_path):
     assert torch.equal(provider(make_frame(12), None), ~m)  # other zero padding
     stem = FolderMasks(str(tmp_path), match="stem")
     frame = make_frame(99)
-    frame.name = "/data/rgb/rgb_0042.jpg"  # a reader that records its source file
+    frame.source = "rgb_0042.jpg"  # a reader that records its source file
     assert torch.equal(stem(frame, None), m)
+
+
+def write_folder_sequence(root: Path, stems: list[str]) -> None:
+    """A data_modules.folder sequence (rgb/, depth/, intrinsics.txt) with colour images named by ``stems``."""
+    import cv2
+
+    for d in ("rgb", "depth"):
+        (root / d).mkdir(parents=True)
+    for stem in stems:
+        assert cv2.imwrite(str(root / "rgb" / f"{stem}.png"), np.full((H, W, 3), 128, np.uint8))
+        assert cv2.imwrite(str(root / "depth" / f"{stem}.png"), np.full((H, W), 2000, np.uint16))
+    (root / "intrinsics.txt").write_text(f"50 50 {W / 2} {H / 2}\n")
+
+
+def test_folder_masks_by_stem_use_the_readers_source_file(tmp_path):
+    from data_modules.folder import FolderSequence
+
+    stems = ["shot_a", "shot_b", "shot_c"]
+    write_folder_sequence(tmp_path / "rec", stems)
+    masks = {stem: square(2 + 4 * k, 3 + 5 * k, 6) for k, stem in enumerate(stems)}
+    for k, stem in enumerate(stems):
+        write_mask_png(tmp_path / "masks" / f"{stem}.png", masks[stem])
+        write_mask_png(tmp_path / "masks" / mask_file_name(k), ~masks[stem])  # index names: must not be used
+    sequence = FolderSequence(tmp_path / "rec")
+    provider = FolderMasks(str(tmp_path / "masks"), match="stem")
+    for k, stem in enumerate(stems):
+        frame = sequence[k]
+        assert frame.source == f"{stem}.png"
+        assert torch.equal(provider(frame, None), masks[stem])
+    # A frame that was not read from a file (a KLG log, the cube) cannot be matched by stem.
+    with pytest.raises(DatasetError, match=r"^masks\.match: 'stem' needs the file each frame was read from, but frame 4 has none"):
+        provider(make_frame(4), None)
 
 
 def test_folder_masks_clear_errors(tmp_path):
