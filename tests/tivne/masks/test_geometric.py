@@ -14,13 +14,9 @@ from data_modules.io import write_mask_png
 from tivne.make_masks import make_masks
 from tivne.masks.base import DatasetMasks, MaskContext, NoMasks, RecordingMasks
 from tivne.masks.folder import FolderMasks, mask_file_name
-from tivne.masks.geometric import (
-    GeometricMasks,
-    clean_mask,
-    depth_segments,
-    free_space_seeds,
-    residual_seeds,
-)
+from tivne.masks.geometric import GeometricMasks
+from tivne.masks.seeds import free_space_seeds, residual_seeds
+from tivne.masks.segments import clean_mask, depth_segments
 from tivne.config import RenderConfig
 
 CONF = Path(__file__).resolve().parents[3] / "conf"
