@@ -1,8 +1,9 @@
 """Model-free (geometric) motion masks: pixels observed in space that was seen as free before.
 
-The provider keeps the history and the per-frame state; the tests themselves are pure functions in
-:mod:`tivne.masks.seeds` (seeds against earlier frames or the map) and :mod:`tivne.masks.segments`
-(seeds -> depth-continuous objects).
+The provider holds the state (earlier frames, the previous mask); the static-world checks are pure
+functions in :mod:`tivne.masks.seeds` (seeds against earlier frames or the map) and
+:mod:`tivne.masks.segments` (seeds -> depth-continuous objects). σ(z) is the sensor's depth noise,
+:func:`data_modules.sensor.kinect_depth_sigma`.
 """
 
 from __future__ import annotations
