@@ -5,7 +5,7 @@
 
 e.g. ``--set geometric:masks.provider.stride=2`` (every 2nd pixel at 160x120 ~ every 8th at 640x480).
 
-Each provider runs inside the real SLAM loop (``tivne.train.run``) wrapped in
+Each provider runs inside the real SLAM loop (``tivne.train.run(..., masks=...)``) wrapped in
 :class:`tivne.masks.base.RecordingMasks`, which records the mask it returned for every frame; masks are
 then compared with the GT masks: per-frame IoU, precision and recall, averaged over all frames and
 over frames with t >= 1 s (the second second on). ``--no-slam`` evaluates providers that need no
@@ -76,7 +76,7 @@ def compose(name: str, args: argparse.Namespace):
         f"data.max_frames={args.frames}",
         "output.evaluate=false",
         "output.image_every=0",
-        "output.mesh_resolution=0.1",
+        "mesh.resolution=0.1",
         "trainer.progress_bar=false",
         f"runtime.threads={args.threads}",
         *[o.split(":", 1)[1] if ":" in o.split("=", 1)[0] else o for o in args.set
@@ -89,19 +89,15 @@ def compose(name: str, args: argparse.Namespace):
 
 
 def run_slam(name: str, args: argparse.Namespace) -> dict[str, float]:
-    from omegaconf import OmegaConf, open_dict
+    from hydra.utils import instantiate
 
     from tivne.train import run
 
     cfg = compose(name, args)
-    with open_dict(cfg):
-        inner = OmegaConf.to_container(cfg.masks.provider)
-        cfg.masks.provider = {"_target_": "tivne.masks.base.RecordingMasks", "inner": inner}
-    RecordingMasks.instances.clear()
+    rec = RecordingMasks(instantiate(cfg.masks.provider))
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as run_dir:
-        metrics = run(cfg, run_dir)
-    rec = RecordingMasks.instances[-1]
+        metrics = run(cfg, run_dir, masks=rec)
     out = summarise(rec)
     out["ate_rmse_m"] = metrics.get("ate_rmse_m")
     out["slam_s"] = time.perf_counter() - start

@@ -271,6 +271,7 @@ class CoFusionSequence(SequenceDataset):
             depth=torch.from_numpy(np.ascontiguousarray(depth)),
             mask=None if ids is None else torch.from_numpy(ids != 0),
             gt_pose=None if self.gt_poses[i] is None else self.gt_poses[i].clone(),
+            source=self.colour_paths[i].name,
         )
         return frame.validate(self.colour_paths[i], self.intrinsics)
 

@@ -198,6 +198,7 @@ class FolderSequence(SequenceDataset):
             depth=torch.from_numpy(np.ascontiguousarray(depth)),
             mask=mask,
             gt_pose=None if pose is None else pose.clone(),
+            source=self.rgb_paths[i].name,
         )
         return frame.validate(self.rgb_paths[i], self.intrinsics)
 

@@ -98,6 +98,9 @@ class Frame:
         depth: (H, W) float32 metres, 0 = invalid.
         mask: (H, W) bool, True = dynamic pixel, or None when the dataset has no masks.
         gt_pose: (4, 4) float64 camera-to-world, or None.
+        source: file name of the colour image the frame was read from (e.g. ``rgb_0042.png``; what
+            per-frame side files such as mask PNGs are matched by), or None for frames without a
+            file of their own (KLG logs, synthetic sequences).
     """
 
     index: int
@@ -106,6 +109,7 @@ class Frame:
     depth: torch.Tensor
     mask: torch.Tensor | None = None
     gt_pose: torch.Tensor | None = None
+    source: str | None = None
 
     @property
     def height(self) -> int:

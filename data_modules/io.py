@@ -5,13 +5,15 @@ for text tables) and what is wrong. Readers:
 
 * :func:`read_rgb` — 8-bit (or 16-bit) colour PNG/JPG via OpenCV -> (H, W, 3) float32 RGB in [0, 1].
 * :func:`read_depth_png` — 16-bit single-channel PNG depth -> (H, W) float32 metres (value / scale).
-* :func:`read_mask_png` / :func:`read_label_png` — 8/16-bit label images (channel 0 when 3-channel).
+* :func:`read_label_png` — 8/16-bit id images (channel 0 when 3-channel); :func:`read_mask_png` —
+  8/16-bit motion masks (nonzero in any colour channel = dynamic), optionally size-checked.
 * :func:`read_exr_depth` — OpenEXR depth through the ``OpenEXR`` package (HALF or FLOAT channels).
 * :func:`read_table` — whitespace/comma separated text tables with ``#`` comments, typed columns and
   ``file:line`` errors; :func:`read_pose_table` builds on it for ``key tx ty tz qx qy qz qw`` files
   and :func:`read_tum_trajectory` / :func:`write_tum_trajectory` read and write TUM trajectories.
 
-Writers (:func:`atomic_write`, :func:`write_tum_trajectory`) replace a file all at once.
+Writers (:func:`atomic_write`, :func:`write_mask_png`, :func:`write_tum_trajectory`) replace a file
+all at once.
 """
 
 from __future__ import annotations
@@ -156,20 +158,56 @@ def read_depth_png(path: str | Path, scale: float) -> np.ndarray:
     return (img.astype(np.float32) / np.float32(scale)).astype(np.float32)
 
 
-def read_label_png(path: str | Path) -> np.ndarray:
-    """Label / id image (8- or 16-bit; channel 0 when it has several) -> (H, W) integer array."""
-    path = Path(path)
+def _read_label_image(path: Path) -> np.ndarray:
+    """An 8- or 16-bit label image as stored: (H, W) or (H, W, C) in OpenCV channel order."""
     img = _imread(path, cv2.IMREAD_UNCHANGED)
     if img.dtype not in (np.uint8, np.uint16):
         raise DatasetError(path, f"mask image is {img.dtype}, expected 8- or 16-bit")
+    return img
+
+
+def read_label_png(path: str | Path) -> np.ndarray:
+    """Label / id image (8- or 16-bit; channel 0 when it has several) -> (H, W) integer array."""
+    img = _read_label_image(Path(path))
     if img.ndim == 3:
         img = img[:, :, 0]  # id masks stored as 3 identical channels; OpenCV order does not matter then
     return img
 
 
-def read_mask_png(path: str | Path) -> np.ndarray:
-    """Mask image -> (H, W) bool, True where the value is nonzero (dynamic)."""
-    return read_label_png(path) != 0
+def read_mask_png(path: str | Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Motion-mask image -> (H, W) bool, True where the value is nonzero (dynamic).
+
+    A colour mask is dynamic where any colour channel is nonzero (a red-on-black mask has an empty
+    OpenCV channel 0); an alpha channel is ignored (it is often 255 everywhere).
+
+    Args:
+        size: (width, height) the mask must have, e.g. its frame's; None = any.
+    Raises:
+        DatasetError naming the file: unreadable, not 8/16-bit, or not ``size``.
+    """
+    path = Path(path)
+    img = _read_label_image(path)
+    mask = (img[:, :, :3] != 0).any(axis=2) if img.ndim == 3 else img != 0
+    if size is not None and (mask.shape[1], mask.shape[0]) != tuple(size):
+        raise DatasetError(path, f"mask is {mask.shape[1]}x{mask.shape[0]} but the frame is {size[0]}x{size[1]}")
+    return mask
+
+
+def write_mask_png(path: str | Path, mask: np.ndarray | torch.Tensor) -> Path:
+    """Write an (H, W) bool mask as an 8-bit single-channel PNG (255 = dynamic), atomically
+    (:func:`atomic_write`); :func:`read_mask_png` reads it back.
+
+    Returns:
+        ``path`` as a Path.
+    Raises:
+        OSError: the PNG cannot be encoded or written (the message names the path).
+    """
+    path = Path(path)
+    arr = mask.detach().cpu().numpy() if isinstance(mask, torch.Tensor) else np.asarray(mask)
+    ok, buf = cv2.imencode(".png", arr.astype(bool).astype(np.uint8) * np.uint8(255))
+    if not ok:
+        raise OSError(f"{path}: could not encode the mask as PNG")
+    return atomic_write(path, buf.tobytes())
 
 
 def read_exr_depth(path: str | Path) -> np.ndarray:

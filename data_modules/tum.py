@@ -216,6 +216,7 @@ class TUMSequence(SequenceDataset):
             depth=torch.from_numpy(np.ascontiguousarray(depth, dtype=np.float32)),
             mask=None,
             gt_pose=None if pose is None else pose.clone(),
+            source=self.rgb_paths[i].name,
         )
         return frame.validate(self.rgb_paths[i], self.intrinsics)
 

@@ -15,10 +15,11 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from data_modules.frame import DatasetError
+from data_modules.io import read_mask_png, write_mask_png
 from data_modules.sequence import SequenceView
 from tivne.cli import one_line_errors
 from tivne.masks.base import MaskProvider
-from tivne.masks.folder import mask_file_name, read_mask_png, write_mask_png
+from tivne.masks.folder import mask_file_name
 
 
 def make_masks(provider: MaskProvider, view, out: str | Path, overwrite: bool = False, progress: bool = True) -> dict[str, int]:

@@ -26,6 +26,7 @@ from tivne.config import (
     SamplerConfig, TrackingConfig, TrainerConfig,
 )
 from tivne.evaluation import evaluate_run
+from tivne.masks.base import MaskProvider
 from tivne.render.samplers import PixelSampler
 from tivne.slam.keyframes import KeyframePolicy
 from tivne.slam.outputs import RunDir
@@ -62,15 +63,17 @@ class TrainSettings:
         return cls(**{name: kind.from_mapping(plain(cfg[name])) for name, kind in sections.items()})
 
 
-def build_system(cfg: DictConfig, intrinsics, run_dir: str | Path, settings: TrainSettings | None = None) -> TivNeSLAM:
-    """Compose the typed stages from the config."""
+def build_system(
+    cfg: DictConfig, intrinsics, run_dir: str | Path, settings: TrainSettings | None = None, masks: MaskProvider | None = None
+) -> TivNeSLAM:
+    """Compose the typed stages from the config; ``masks`` (a provider object) replaces ``cfg.masks.provider``."""
     s = settings or TrainSettings.from_config(cfg)
     return TivNeSLAM(
         field_cfg=s.field,
         intrinsics=intrinsics,
         sampler=PixelSampler(s.sampler),
         keyframes=KeyframePolicy(s.keyframe),
-        masks=instantiate(cfg.masks.provider),
+        masks=masks if masks is not None else instantiate(cfg.masks.provider),
         render=s.render,
         loss=s.loss,
         tracking=s.tracking,
@@ -82,14 +85,18 @@ def build_system(cfg: DictConfig, intrinsics, run_dir: str | Path, settings: Tra
     )
 
 
-def run(cfg: DictConfig, run_dir: str | Path) -> dict[str, Any]:
-    """Run SLAM over the configured sequence and return metrics.json's content."""
+def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None) -> dict[str, Any]:
+    """Run SLAM over the configured sequence and return metrics.json's content.
+
+    ``masks``: a provider object to use instead of ``cfg.masks.provider`` (e.g. a benchmark's
+    :class:`tivne.masks.base.RecordingMasks` around the configured one).
+    """
     settings = TrainSettings.from_config(cfg)  # before any data is read
     configure_runtime(settings.runtime.threads, settings.runtime.tune_allocator)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     dataset = instantiate(cfg.dataset)
     datamodule = SequenceDataModule(dataset, **plain(cfg.data))
-    system = build_system(cfg, datamodule.intrinsics, run_dir, settings)
+    system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks)
     trainer = L.Trainer(
         max_epochs=1,
         accelerator=settings.trainer.accelerator,

@@ -25,6 +25,7 @@ def _check_round_trip(ds, truth):
         if truth.mask_ids:
             np.testing.assert_array_equal(f.mask.numpy(), truth.mask_ids[i] != 0)
         np.testing.assert_allclose(f.gt_pose.numpy(), truth.poses[i], atol=1e-9)
+        assert f.source == f"Color{truth.numbers[i]:04d}.png"
 
 
 @pytest.mark.parametrize("exr,half", [("Y", False), ("Y", True), ("RGB", False), ("RGB", True)])

@@ -29,7 +29,7 @@ def test_round_trip_fps_and_natural_order(tmp_path):
         np.testing.assert_array_equal(np.round(f.rgb.numpy() * 255).astype(np.uint8), truth.rgb[i])
         np.testing.assert_allclose(f.depth.numpy(), truth.depth[i], rtol=1e-7)
         np.testing.assert_array_equal(f.mask.numpy(), truth.masks[i])
-        assert f.gt_pose is None
+        assert f.gt_pose is None and f.source == f"{i}.png"
 
 
 def test_timestamp_names_and_poses(tmp_path):

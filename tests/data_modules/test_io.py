@@ -24,6 +24,7 @@ from data_modules.io import (  # noqa: E402
     read_tum_trajectory,
     require_dir,
     sanitize_depth,
+    write_mask_png,
     write_tum_trajectory,
 )
 
@@ -73,6 +74,20 @@ def test_mask_png(tmp_path):
     m = np.array([[0, 1], [255, 0]], np.uint8)
     write_png8(tmp_path / "m.png", np.repeat(m[:, :, None], 3, axis=2))
     np.testing.assert_array_equal(read_mask_png(tmp_path / "m.png"), m != 0)
+
+
+def test_mask_png_round_trip_colour_and_size(tmp_path):
+    m = np.zeros((6, 8), bool)
+    m[1:3, 2:5] = True
+    write_mask_png(tmp_path / "w.png", torch.from_numpy(m))
+    assert not list(tmp_path.glob(".*tmp"))  # written atomically
+    np.testing.assert_array_equal(read_mask_png(tmp_path / "w.png", size=(8, 6)), m)
+    red = np.zeros((6, 8, 3), np.uint8)
+    red[m] = (255, 0, 0)  # red on black: OpenCV's channel 0 (blue) is empty
+    write_png_rgb(tmp_path / "red.png", red)
+    np.testing.assert_array_equal(read_mask_png(tmp_path / "red.png"), m)
+    with pytest.raises(DatasetError, match=r"w\.png: mask is 8x6 but the frame is 6x8"):
+        read_mask_png(tmp_path / "w.png", size=(6, 8))
 
 
 @pytest.mark.parametrize("half", [False, True])

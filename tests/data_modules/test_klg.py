@@ -28,7 +28,7 @@ def test_round_trip_mixed_frames(tmp_path):
     assert ds.offsets.tolist() == truth.offsets
     for i in range(3):
         f = ds[i]
-        assert f.mask is None and f.gt_pose is None
+        assert f.mask is None and f.gt_pose is None and f.source is None  # one log file, no file per frame
         np.testing.assert_array_equal(f.depth.numpy(), truth.depth_mm[i].astype(np.float32) / 1000.0)
         rgb8 = np.round(f.rgb.numpy() * 255).astype(int)
         if truth.modes[i][1] == "jpeg":

@@ -52,6 +52,7 @@ def test_round_trip_association_and_intrinsics(tmp_path):
         np.testing.assert_array_equal(np.round(f.rgb.numpy() * 255).astype(np.uint8), truth.rgb[i])
         np.testing.assert_allclose(f.depth.numpy(), truth.depth[i], rtol=1e-7)
         assert f.gt_pose is None and f.mask is None and f.timestamp == truth.rgb_ts[i]
+        assert f.source == ds.rgb_paths[i].name  # the colour file, for per-frame side files (mask PNGs)
 
 
 def test_max_time_diff_configurable(tmp_path):

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 
 from tivne.slam.checkpoint import load_checkpoint
@@ -41,6 +42,15 @@ def test_every_combination_runs(tmp_path, field, sampler, keyframe):
     assert field_back.time == (field == "tivne") and len(meta["timestamps"]) == 5
     assert len(list((tmp_path / "meshes").glob("*.ply"))) == 2
     assert list((tmp_path / "tb").glob("events.*"))
+
+
+def test_run_takes_a_provider_object(tmp_path):
+    from tivne.masks.base import DatasetMasks, RecordingMasks
+
+    rec = RecordingMasks(DatasetMasks())  # replaces the configured masks=none
+    metrics = run(compose_cfg("masks=none", "output.image_every=0"), tmp_path, masks=rec)
+    assert metrics["frames"] == 5 and sorted(rec.masks) == [0, 1, 2, 3, 4]
+    assert all(rec.masks[i] is not None and torch.equal(rec.masks[i], rec.gt[i]) for i in rec.masks)
 
 
 def test_no_masks_runs(tmp_path):

@@ -1,2 +1,2 @@
 """Motion-mask providers (config group ``masks``): base (interface, dataset, none), folder,
-geometric (model-free), maskrcnn (optional torchvision)."""
+geometric (model-free; its pure tests in seeds and segments), maskrcnn (optional torchvision)."""

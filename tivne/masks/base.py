@@ -80,18 +80,12 @@ class DatasetMasks(MaskProvider):
         return frame.mask
 
 
-
 class RecordingMasks(MaskProvider):
-    """Wraps a provider and keeps every mask it returns (per frame index) -- for benchmarks.
-
-    Instances register themselves in ``RecordingMasks.instances`` so a caller that builds the system
-    through Hydra (``masks.provider: {_target_: tivne.masks.RecordingMasks, inner: {...}}``) finds them.
+    """Wraps a provider and keeps every mask it returns, with the frame's GT mask and timestamp (per
+    frame index) -- for benchmarks: hand it to :func:`tivne.train.run` (``masks=``) and read it after.
     """
 
-    instances: list["RecordingMasks"] = []
-
     def __init__(self, inner: MaskProvider) -> None:
-        RecordingMasks.instances.append(self)
         self.inner = inner
         self.name = inner.name
         self.needs_tracked_pose = inner.needs_tracked_pose

@@ -1,17 +1,15 @@
-"""Masks from a folder of PNGs, one per frame (nonzero = dynamic), and the PNG reader/writer."""
+"""Masks from a folder of PNGs, one per frame (nonzero = dynamic); the PNGs are read and written by
+:func:`data_modules.io.read_mask_png` / :func:`data_modules.io.write_mask_png`."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from data_modules.frame import DatasetError, Frame
-from data_modules.io import atomic_write
+from data_modules.io import read_mask_png
 from tivne.masks.base import MaskContext, MaskProvider
-
-
 
 
 def mask_file_name(index: int) -> str:
@@ -19,42 +17,13 @@ def mask_file_name(index: int) -> str:
     return f"{index:06d}.png"
 
 
-def read_mask_png(path: str | Path, size: tuple[int, int] | None = None) -> torch.Tensor:
-    """Read a mask PNG (nonzero = dynamic) as (H, W) bool; ``size`` = (width, height) to check.
-
-    Raises :class:`DatasetError` (one line naming the file) when it is unreadable or the wrong size.
-    """
-    import cv2
-
-    path = Path(path)
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise DatasetError(path, "mask is not a readable image")
-    if img.ndim == 3:
-        img = img.max(axis=2)
-    if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
-        raise DatasetError(path, f"mask is {img.shape[1]}x{img.shape[0]} but the frame is {size[0]}x{size[1]}")
-    return torch.from_numpy(np.ascontiguousarray(img != 0))
-
-
-def write_mask_png(path: str | Path, mask: torch.Tensor | np.ndarray) -> None:
-    """Write an (H, W) bool mask as an 8-bit PNG (255 = dynamic), atomically (tmp file + rename)."""
-    import cv2
-
-    path = Path(path)
-    arr = mask.detach().cpu().numpy() if isinstance(mask, torch.Tensor) else np.asarray(mask)
-    ok, buf = cv2.imencode(".png", (arr.astype(bool) * 255).astype(np.uint8))
-    if not ok:
-        raise OSError(f"{path}: could not encode the mask")
-    atomic_write(path, buf.tobytes())
-
-
 class FolderMasks(MaskProvider):
     """Masks from a folder of PNGs (nonzero = dynamic), one per frame.
 
     ``match='index'``: ``<root>/<index:06d>.png`` (what ``python -m tivne.make_masks`` writes; also
-    accepts any zero padding, e.g. ``123.png``). ``match='stem'``: the frame's source file stem, taken
-    from ``frame.name`` / ``frame.path`` / ``frame.source`` when the reader sets one, else the index.
+    accepts any zero padding, e.g. ``123.png``). ``match='stem'``: ``<root>/<stem>.png`` with the stem
+    of the colour image the frame was read from (``Frame.source``); a frame without one (a KLG log,
+    the synthetic cube) is a one-line :class:`DatasetError`, never a silent fall back to the index.
     ``missing='error'`` raises a one-line :class:`DatasetError` naming the file; ``'none'`` gives None.
     """
 
@@ -79,14 +48,17 @@ class FolderMasks(MaskProvider):
         return self._by_stem
 
     def path_for(self, frame: Frame) -> Path:
+        """The mask file of ``frame`` (it may not exist)."""
         stems = self._stems()
         if self.match == "stem":
-            for attr in ("name", "path", "source", "rgb_path"):
-                value = getattr(frame, attr, None)
-                if value:
-                    stem = Path(str(value)).stem
-                    if stem in stems:
-                        return stems[stem]
+            if frame.source is None:
+                raise DatasetError(
+                    "masks.match",
+                    f"'stem' needs the file each frame was read from, but frame {frame.index} has none"
+                    " (its dataset has no file per frame); use match=index",
+                )
+            stem = Path(frame.source).stem
+            return stems.get(stem, self.root / f"{stem}{self.suffix}")
         exact = self.root / mask_file_name(frame.index)
         if exact.exists():
             return exact
@@ -101,6 +73,5 @@ class FolderMasks(MaskProvider):
             if self.missing == "none":
                 return None
             raise DatasetError(path, f"mask for frame {frame.index} not found")
-        return read_mask_png(path, (frame.width, frame.height)).to(frame.depth.device)
-
-
+        mask = read_mask_png(path, (frame.width, frame.height))
+        return torch.from_numpy(mask).to(frame.depth.device)

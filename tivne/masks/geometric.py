@@ -1,4 +1,10 @@
-"""Model-free (geometric) motion masks: pixels observed in space that was seen as free before."""
+"""Model-free (geometric) motion masks: pixels observed in space that was seen as free before.
+
+The provider holds the state (earlier frames, the previous mask); the static-world checks are pure
+functions in :mod:`tivne.masks.seeds` (seeds against earlier frames or the map) and
+:mod:`tivne.masks.segments` (seeds -> depth-continuous objects). σ(z) is the sensor's depth noise,
+:func:`data_modules.sensor.kinect_depth_sigma`.
+"""
 
 from __future__ import annotations
 
@@ -8,192 +14,10 @@ import numpy as np
 import torch
 
 from data_modules.frame import Frame
+from tivne.geometry import pixel_grid
 from tivne.masks.base import MaskContext, MaskProvider
-from tivne.render.rays import rays_from_pixels
-
-
-
-
-def depth_sigma(z: torch.Tensor) -> torch.Tensor:
-    """Kinect-like axial depth noise σ(z) = 0.0012 + 0.0019 (z - 0.4)² metres (Nguyen et al. 2012)."""
-    return 0.0012 + 0.0019 * (z - 0.4).pow(2)
-
-
-def residual_seeds(
-    observed: torch.Tensor,
-    rendered: torch.Tensor,
-    known: torch.Tensor,
-    abs_threshold: float = 0.08,
-    k_sigma: float = 6.0,
-    color_residual: torch.Tensor | None = None,
-    color_threshold: float | None = None,
-) -> torch.Tensor:
-    """Pixels where the observation is *in front of* the map: something now occupies space the map
-    saw as free. That sign marks the moving object's current pixels; the opposite sign (observed
-    behind the map) is disoccluded background where the object was and is left out.
-
-    Args:
-        observed, rendered: (H, W) depth in metres (0 = invalid observation).
-        known: (H, W) bool, the map has a surface along the ray (not newly observed space).
-        color_residual: optional (H, W) colour L1 (mean over channels); flags pixels whose depth
-            agrees with the map (|r| < threshold) but whose colour does not.
-    Returns:
-        (H, W) bool.
-    """
-    thr = torch.clamp(k_sigma * depth_sigma(observed), min=abs_threshold)
-    valid = known & (observed > 0)
-    seeds = valid & (rendered - observed > thr)
-    if color_residual is not None and color_threshold is not None and color_threshold > 0:
-        seeds = seeds | (valid & ((observed - rendered).abs() <= thr) & (color_residual > color_threshold))
-    return seeds
-
-
-def depth_segments(depth: np.ndarray, rel_jump: float = 0.1, abs_jump: float = 0.03) -> tuple[np.ndarray, int]:
-    """Label depth-continuous regions: neighbours join when |Δz| <= max(abs_jump, rel_jump · z).
-
-    Args:
-        depth: (H, W) metres, 0 = invalid (never labelled).
-    Returns:
-        labels (H, W) int32 (0 = invalid or depth edge), number of labels.
-    """
-    from scipy import ndimage
-
-    d = depth.astype(np.float32)
-    valid = d > 0
-    thr = np.maximum(abs_jump, rel_jump * d)
-    edge = np.zeros_like(valid)
-    dx = np.abs(d[:, 1:] - d[:, :-1]) > np.minimum(thr[:, 1:], thr[:, :-1])
-    dy = np.abs(d[1:, :] - d[:-1, :]) > np.minimum(thr[1:, :], thr[:-1, :])
-    # The far side of a jump is the edge: the near (occluding) side keeps its silhouette.
-    far_x = d[:, 1:] > d[:, :-1]
-    edge[:, 1:] |= dx & far_x
-    edge[:, :-1] |= dx & ~far_x
-    far_y = d[1:, :] > d[:-1, :]
-    edge[1:, :] |= dy & far_y
-    edge[:-1, :] |= dy & ~far_y
-    inner = valid & ~edge
-    labels, n = ndimage.label(inner)
-    return labels.astype(np.int32), int(n)
-
-
-def clean_mask(
-    seeds: np.ndarray,
-    depth: np.ndarray,
-    previous: np.ndarray | None = None,
-    open_radius: int = 1,
-    min_area: int = 20,
-    seed_fraction: float = 0.08,
-    keep_fraction: float = 0.5,
-    max_area_fraction: float = 0.4,
-    rel_jump: float = 0.1,
-    abs_jump: float = 0.03,
-    close_radius: int = 1,
-    motion_score: np.ndarray | None = None,
-    score_threshold: float = 3.0,
-    score_ratio: float = 2.0,
-) -> np.ndarray:
-    """Residual seeds -> a clean object mask (pure function, numpy).
-
-    1. Opening removes speckle and one-pixel slivers from the seeds.
-    2. The frame is split into depth-continuous segments (:func:`depth_segments`); a segment is
-       dynamic when its seeds cover >= ``seed_fraction`` of it, or (temporal consistency) when
-       >= ``keep_fraction`` of it was dynamic in ``previous``; segments smaller than ``min_area`` px
-       or larger than ``max_area_fraction`` of the valid pixels (the static background) never are.
-       With ``motion_score`` (per-pixel |residual| / σ(z) against an earlier frame, NaN where
-       unknown) a segment is also dynamic when its median score reaches ``score_threshold`` and
-       ``score_ratio`` times the largest segment's (the background's, so a pose error that moves
-       everything does not fire): averaging over the segment catches motion far below the per-pixel
-       seed threshold.
-    3. Closing fills holes; the result is restricted to valid depth.
-
-    Args:
-        seeds: (H, W) bool. depth: (H, W) metres. previous: (H, W) bool or None.
-    Returns:
-        (H, W) bool.
-    """
-    from scipy import ndimage
-
-    valid = depth > 0
-    s = seeds & valid
-    if open_radius > 0:
-        s = ndimage.binary_opening(s, structure=np.ones((2 * open_radius + 1,) * 2, bool))
-    labels, n = depth_segments(depth, rel_jump, abs_jump)
-    if n == 0:
-        return np.zeros_like(valid)
-    idx = np.arange(1, n + 1)
-    area = ndimage.sum_labels(np.ones_like(labels), labels, idx)
-    seed_px = ndimage.sum_labels(s, labels, idx)
-    keep = seed_px >= seed_fraction * area
-    if motion_score is not None:
-        scored = np.where(np.isfinite(motion_score), labels, 0)
-        n_scored = ndimage.sum_labels(np.ones_like(scored), scored, idx)
-        med = np.asarray(ndimage.median(np.nan_to_num(np.abs(motion_score)), scored, idx), dtype=np.float64)
-        med = np.where(n_scored >= min_area, med, 0.0)
-        background = med[int(np.argmax(area))]
-        keep |= (med >= score_threshold) & (med >= score_ratio * background) & (n_scored >= 0.5 * area)
-    if previous is not None and previous.shape == labels.shape and previous.any():
-        keep |= ndimage.sum_labels(previous, labels, idx) >= keep_fraction * area
-    keep &= (area >= min_area) & (area <= max_area_fraction * max(int(valid.sum()), 1))
-    lut = np.zeros(n + 1, bool)
-    lut[1:] = keep
-    out = lut[labels]
-    if out.any():
-        # Give the segments back their edge pixels that sit at the segment's depth.
-        ring = ndimage.binary_dilation(out) & ~out & valid
-        dsum = ndimage.uniform_filter(np.where(out, depth, 0.0).astype(np.float64), 3)
-        csum = ndimage.uniform_filter(out.astype(np.float64), 3)
-        nbr = dsum / np.maximum(csum, 1e-9)
-        out |= ring & (np.abs(depth - nbr) <= np.maximum(abs_jump, rel_jump * depth))
-        if close_radius > 0:
-            out = ndimage.binary_closing(out, structure=np.ones((2 * close_radius + 1,) * 2, bool), border_value=0)
-    return out & valid
-
-
-@torch.no_grad()
-def march_map_depth(
-    field: torch.nn.Module,
-    pose: torch.Tensor,
-    K: torch.Tensor,
-    uv: torch.Tensor,
-    tau: float,
-    near: float,
-    far: float,
-    step: float,
-    chunk: int = 4096,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Where the map's first surface lies along pixel rays (sphere-free SDF marching).
-
-    Samples every ``step`` metres in [near, far], finds the first + to - sign change of the SDF among
-    allocated samples (unallocated space counts as free) and interpolates linearly.
-
-    Args:
-        uv: (N, 2) pixel coordinates. pose: (4, 4) c2w.
-    Returns:
-        depth (N,) z-depth of the surface (0 where none), known (N,) bool, rgb (N, 3) at the surface.
-    """
-    n_s = max(int(np.ceil((far - near) / step)) + 1, 2)
-    z = torch.linspace(near, far, n_s, device=uv.device, dtype=K.dtype)
-    out_d, out_k, out_c = [], [], []
-    per = max(chunk // n_s, 64)  # rays per forward pass
-    for start in range(0, uv.shape[0], per):
-        o, d = rays_from_pixels(uv[start : start + per].to(K.dtype), K, pose)
-        pts = o[:, None, :] + d[:, None, :] * z[None, :, None]
-        m = pts.shape[0]
-        f = field(pts.reshape(-1, 3), torch.full((m * n_s,), float(tau), device=uv.device, dtype=K.dtype))
-        sdf = torch.where(f.valid, f.sdf, torch.ones_like(f.sdf)).view(m, n_s)
-        crossing = (sdf[:, :-1] > 0) & (sdf[:, 1:] <= 0) & f.valid.view(m, n_s)[:, 1:]
-        has = crossing.any(dim=1)
-        i = crossing.float().argmax(dim=1)
-        s0 = sdf.gather(1, i[:, None])[:, 0]
-        s1 = sdf.gather(1, (i + 1)[:, None])[:, 0]
-        frac = (s0 / (s0 - s1).clamp_min(1e-6)).clamp(0, 1)
-        depth = torch.where(has, z[i] + frac * (z[1] - z[0]), torch.zeros_like(s0))
-        rgb = f.rgb.view(m, n_s, 3)
-        c = rgb.gather(1, (i + 1)[:, None, None].expand(-1, 1, 3))[:, 0]
-        out_d.append(depth)
-        out_k.append(has)
-        out_c.append(c)
-    return torch.cat(out_d), torch.cat(out_k), torch.cat(out_c)
+from tivne.masks.seeds import free_space_seeds, march_map_depth, residual_seeds
+from tivne.masks.segments import clean_mask
 
 
 def upsample_mask(low: torch.Tensor, stride: int, like: torch.Tensor) -> torch.Tensor:
@@ -206,57 +30,6 @@ def upsample_mask(low: torch.Tensor, stride: int, like: torch.Tensor) -> torch.T
         pad[: full.shape[0], : full.shape[1]] = full
         full = pad
     return full
-
-
-@torch.no_grad()
-def free_space_seeds(
-    depth: torch.Tensor,
-    pose: torch.Tensor,
-    ref_depth: torch.Tensor,
-    ref_pose: torch.Tensor,
-    K: torch.Tensor,
-    abs_threshold: float = 0.08,
-    k_sigma: float = 6.0,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Pixels whose observed point lies in space an earlier frame saw as free (static-world test).
-
-    Each valid pixel is back-projected with ``depth`` and ``pose``, moved into the reference camera
-    and compared with the reference depth there (the minimum over a 3x3 neighbourhood, so static
-    silhouettes do not fire): ``z_ref(X) < d_ref - thr`` means the point was empty space then, so
-    something moved *into* it -- the moving object's current pixels. Disoccluded background
-    (``z_ref(X) > d_ref``) is not flagged.
-
-    Args:
-        depth, ref_depth: (H, W) metres, 0 = invalid. pose, ref_pose: (4, 4) c2w. K: (3, 3) for (H, W).
-    Returns:
-        seeds (H, W) bool, known (H, W) bool (the reference saw the point's pixel), and residual
-        (H, W) float: (z_ref(X) - d_ref) / σ(d_ref) at the nearest reference pixel (no 3x3 minimum;
-        NaN where not known), the signed static-world residual in noise units.
-    """
-    h, w = depth.shape
-    v, u = torch.meshgrid(torch.arange(h, device=depth.device), torch.arange(w, device=depth.device), indexing="ij")
-    x = (u - K[0, 2]) / K[0, 0] * depth
-    y = (v - K[1, 2]) / K[1, 1] * depth
-    cam = torch.stack([x, y, depth], dim=-1).reshape(-1, 3)
-    rel = torch.linalg.solve(ref_pose.to(cam.dtype), pose.to(cam.dtype))  # current camera -> reference camera
-    p = cam @ rel[:3, :3].T + rel[:3, 3]
-    z = p[:, 2]
-    ur = torch.round(p[:, 0] / z.clamp_min(1e-6) * K[0, 0] + K[0, 2]).long()
-    vr = torch.round(p[:, 1] / z.clamp_min(1e-6) * K[1, 1] + K[1, 2]).long()
-    inb = (z > 1e-3) & (ur >= 0) & (ur < w) & (vr >= 0) & (vr < h)
-    inf = torch.where(ref_depth > 0, ref_depth, torch.full_like(ref_depth, float("inf")))
-    dmin = -torch.nn.functional.max_pool2d(-inf[None, None], 3, stride=1, padding=1)[0, 0]
-    d_ref = torch.zeros_like(z)
-    d_ref[inb] = dmin[vr[inb], ur[inb]]
-    known = inb & torch.isfinite(d_ref) & (depth.reshape(-1) > 0)
-    thr = torch.clamp(k_sigma * depth_sigma(d_ref.clamp(max=20.0)), min=abs_threshold)
-    seeds = known & (z < d_ref - thr)
-    d_centre = torch.zeros_like(z)
-    d_centre[inb] = ref_depth[vr[inb], ur[inb]]
-    scored = known & (d_centre > 0)
-    residual = torch.full_like(z, float("nan"))
-    residual[scored] = (z[scored] - d_centre[scored]) / depth_sigma(d_centre[scored])
-    return seeds.view(h, w), known.view(h, w), residual.view(h, w)
 
 
 class GeometricMasks(MaskProvider):
@@ -450,12 +223,14 @@ class GeometricMasks(MaskProvider):
         self.history = [e for e in self.history if k - e[0] <= horizon]
         return seeds, score
 
-    def _map_seeds(self, frame: Frame, depth: torch.Tensor, context: MaskContext):
+    def _map_seeds(
+        self, frame: Frame, depth: torch.Tensor, context: MaskContext
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Residual seeds against the map ray-marched at the tracked pose, with the map's depth and
+        where it knows a surface (all (h, w) at the low resolution)."""
         s = self.stride
-        device = depth.device
         hs, ws = depth.shape
-        v, u = torch.meshgrid(torch.arange(hs, device=device) * s, torch.arange(ws, device=device) * s, indexing="ij")
-        uv = torch.stack([u.reshape(-1), v.reshape(-1)], dim=-1).float()
+        uv = (pixel_grid(hs, ws, depth.device) * s).reshape(-1, 2)  # low-resolution pixel i is frame pixel i*s
         r = context.render
         near = float(getattr(r, "near", 0.05))
         far = max(self.far, float(depth.max()) + 0.5)
@@ -467,5 +242,3 @@ class GeometricMasks(MaskProvider):
             color_res = (rc.view(hs, ws, 3) - frame.rgb[::s, ::s]).abs().mean(-1)
         seeds = residual_seeds(depth, rd, known, self.abs_threshold, self.k_sigma, color_res, self.color_threshold)
         return seeds, rd, known
-
-
