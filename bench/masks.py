@@ -67,7 +67,8 @@ def summarise(rec: RecordingMasks, t0_after: float = 1.0) -> dict[str, float]:
 
 
 def compose(name: str, args: argparse.Namespace):
-    from hydra import compose as hcompose, initialize_config_dir
+    from hydra import compose as hcompose
+    from hydra import initialize_config_dir
 
     overrides = [
         f"masks={name}",
@@ -106,9 +107,9 @@ def run_slam(name: str, args: argparse.Namespace) -> dict[str, float]:
 
 def run_frames(name: str, args: argparse.Namespace) -> dict[str, float]:
     from hydra.utils import instantiate
+    from omegaconf import OmegaConf
 
     from data_modules.sequence import SequenceView
-    from omegaconf import OmegaConf
 
     cfg = compose(name, args)
     view = SequenceView(instantiate(cfg.dataset), **OmegaConf.to_container(cfg.data, resolve=True))

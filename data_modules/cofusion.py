@@ -30,17 +30,19 @@ from data_modules.frame import DatasetError, Frame, Intrinsics, intrinsics_from
 from data_modules.io import (
     check_same_size,
     check_size,
-    finite_float,
     read_exr_depth,
-    read_intrinsics_file,
     read_label_png,
-    read_pose_table,
     read_rgb,
-    read_table,
     require_dir,
     sanitize_depth,
 )
 from data_modules.sequence import SequenceDataset
+from data_modules.tables import (
+    finite_float,
+    read_intrinsics_file,
+    read_pose_table,
+    read_table,
+)
 from data_modules.timestamps import check_monotonic_timestamps
 
 log = logging.getLogger(__name__)

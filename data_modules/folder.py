@@ -33,17 +33,19 @@ from data_modules.frame import DatasetError, Frame, Intrinsics, intrinsics_from
 from data_modules.io import (
     check_same_size,
     check_size,
-    finite_float,
     read_depth_png,
-    read_intrinsics_file,
     read_mask_png,
-    read_pose_table,
     read_rgb,
-    read_table,
     require_dir,
 )
 from data_modules.poses import interpolate_poses
 from data_modules.sequence import SequenceDataset
+from data_modules.tables import (
+    finite_float,
+    read_intrinsics_file,
+    read_pose_table,
+    read_table,
+)
 from data_modules.timestamps import check_monotonic_timestamps
 
 _RGB_EXT = (".png", ".jpg", ".jpeg")

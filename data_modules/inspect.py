@@ -25,8 +25,8 @@ import numpy as np
 import torch
 
 from data_modules.frame import DatasetError
-from data_modules.io import write_tum_trajectory
 from data_modules.sequence import SequenceDataset, SequenceView
+from data_modules.tables import write_tum_trajectory
 
 EXIT_BAD_INPUT = 2
 SHEET_PANEL_MAX_WIDTH = 320

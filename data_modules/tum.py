@@ -34,15 +34,13 @@ from data_modules.frame import DatasetError, Frame, intrinsics_from
 from data_modules.io import (
     check_same_size,
     check_size,
-    finite_float,
     read_depth_png,
-    read_pose_table,
     read_rgb,
-    read_table,
     require_dir,
 )
 from data_modules.poses import interpolate_poses, orthonormalize_pose
 from data_modules.sequence import SequenceDataset
+from data_modules.tables import finite_float, read_pose_table, read_table
 from data_modules.timestamps import associate_by_timestamp, check_monotonic_timestamps
 
 log = logging.getLogger(__name__)

@@ -19,7 +19,13 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue
 
 from data_modules.frame import DatasetError
-from tivne.config import SECTIONS, ConfigError, MeshConfig, MeshEvalSettings, default_tree
+from tivne.config import (
+    SECTIONS,
+    ConfigError,
+    MeshConfig,
+    MeshEvalSettings,
+    default_tree,
+)
 
 EXIT_BAD_INPUT = 2
 BAD_INPUT: tuple[type[BaseException], ...] = (DatasetError, ConfigError, MissingMandatoryValue, FileNotFoundError, PermissionError)

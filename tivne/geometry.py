@@ -11,10 +11,15 @@ import torch
 from kornia.geometry.liegroup import Se3, So3
 
 from data_modules.frame import Intrinsics
+from data_modules.poses import (  # noqa: F401
+    matrix_to_quat,
+    orthonormalize_pose,
+    pose_from_tq,
+    quat_to_matrix,
+)
+
 # Pose helpers and TUM trajectory files live in the data layer (readers need them); re-exported
 # here so tivne code keeps importing them from tivne.geometry.
-from data_modules.io import read_tum_trajectory, write_tum_trajectory  # noqa: F401
-from data_modules.poses import matrix_to_quat, orthonormalize_pose, pose_from_tq, quat_to_matrix  # noqa: F401
 
 
 def intrinsics_to_K(intr: Intrinsics, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:

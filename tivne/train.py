@@ -22,8 +22,17 @@ from omegaconf import DictConfig, OmegaConf
 from data_modules.sequence import SequenceDataModule
 from tivne.cli import one_line_errors, register_defaults
 from tivne.config import (
-    FieldConfig, KeyframeConfig, LossWeights, MappingConfig, MeshConfig, OutputConfig, RenderConfig, RuntimeConfig,
-    SamplerConfig, TrackingConfig, TrainerConfig,
+    FieldConfig,
+    KeyframeConfig,
+    LossWeights,
+    MappingConfig,
+    MeshConfig,
+    OutputConfig,
+    RenderConfig,
+    RuntimeConfig,
+    SamplerConfig,
+    TrackingConfig,
+    TrainerConfig,
 )
 from tivne.evaluation import evaluate_run
 from tivne.masks.base import MaskProvider

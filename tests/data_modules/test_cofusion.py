@@ -236,8 +236,8 @@ def test_config_instantiates(tmp_path, config):
 
 
 def test_config_root_is_mandatory():
-    from omegaconf import OmegaConf
     from fixtures import CONF_DIR
+    from omegaconf import OmegaConf
 
     for name in ("room4", "toycar3", "teddy", "tum", "bonn", "folder"):
         cfg = OmegaConf.load(CONF_DIR / f"{name}.yaml")
@@ -266,7 +266,7 @@ def test_inspect_cli_json_and_gt_out(tmp_path):
 
     from fixtures import run_inspect_cli
 
-    from data_modules.io import read_tum_trajectory
+    from data_modules.tables import read_tum_trajectory
 
     truth = make_cofusion(tmp_path / "car4-full", n=3)
     gt = tmp_path / "gt.txt"

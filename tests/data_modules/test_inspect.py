@@ -15,9 +15,15 @@ import pytest
 import torch
 
 from data_modules.frame import DatasetError, Frame, Intrinsics
-from data_modules.inspect import contact_sheet, gt_trajectory, run, sample_indices, summarize
+from data_modules.inspect import (
+    contact_sheet,
+    gt_trajectory,
+    run,
+    sample_indices,
+    summarize,
+)
 from data_modules.sequence import SequenceDataset, SequenceView
-from data_modules.io import read_tum_trajectory
+from data_modules.tables import read_tum_trajectory
 
 REPO = Path(__file__).resolve().parents[2]
 SMALL = ["dataset.width=80", "dataset.height=60", "dataset.num_frames=5", "dataset.cache_dir=null"]

@@ -8,23 +8,32 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fixtures import random_pose, write_exr, write_png16, write_png8, write_png_rgb, write_poses  # noqa: E402
+from fixtures import (  # noqa: E402
+    random_pose,
+    write_exr,
+    write_png8,
+    write_png16,
+    write_png_rgb,
+    write_poses,
+)
 
 from data_modules.frame import DatasetError  # noqa: E402
-from data_modules.io import (  # noqa: E402
-    finite_float,
-    integer,
+from data_modules.io import (
     read_depth_png,
     read_exr_depth,
-    read_intrinsics_file,
     read_mask_png,
-    read_pose_table,
     read_rgb,
-    read_table,
-    read_tum_trajectory,
     require_dir,
     sanitize_depth,
     write_mask_png,
+)
+from data_modules.tables import (
+    finite_float,
+    integer,
+    read_intrinsics_file,
+    read_pose_table,
+    read_table,
+    read_tum_trajectory,
     write_tum_trajectory,
 )
 

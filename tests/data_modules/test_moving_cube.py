@@ -10,7 +10,13 @@ import torch
 
 from data_modules.frame import DatasetError
 from data_modules.moving_cube import CUBE_HALF, ROOM_MAX, ROOM_MIN, MovingCubeSequence
-from tivne.geometry import invert_pose, pixel_grid, pixel_to_ray, project, transform_points
+from tivne.geometry import (
+    invert_pose,
+    pixel_grid,
+    pixel_to_ray,
+    project,
+    transform_points,
+)
 
 
 def _world_rays(ds: MovingCubeSequence, i: int) -> tuple[torch.Tensor, torch.Tensor]:

@@ -9,7 +9,12 @@ import pytest
 import torch
 
 from data_modules import poses as P
-from data_modules.poses import TIME_TOLERANCE_S, interpolate_poses, orthonormalize_pose, slerp_quat
+from data_modules.poses import (
+    TIME_TOLERANCE_S,
+    interpolate_poses,
+    orthonormalize_pose,
+    slerp_quat,
+)
 
 F64 = torch.float64
 

@@ -19,7 +19,12 @@ from data_modules.moving_cube import MovingCubeSequence
 from data_modules.sequence import SequenceView
 from tivne.cli import register_defaults
 from tivne.config import MeshEvalSettings
-from tivne.evaluation import evaluate_run, flatten_mesh_metrics, in_boxes, trajectory_metrics
+from tivne.evaluation import (
+    evaluate_run,
+    flatten_mesh_metrics,
+    in_boxes,
+    trajectory_metrics,
+)
 from tivne.geometry import write_tum_trajectory
 from tivne.meshing import save_mesh
 from tivne.slam.outputs import RunDir
@@ -93,7 +98,12 @@ def test_stale_cube_is_a_ghost(tmp_path, view, gt_meshes):
 
 
 def test_mesh_from_checkpoint_and_reasons(tmp_path, view):
-    from test_meshing import embedded_sphere, field_kwargs, outside_cameras  # same folder (pytest prepends it to sys.path)
+    from test_meshing import (  # same folder (pytest prepends it to sys.path)
+        embedded_sphere,
+        field_kwargs,
+        outside_cameras,
+    )
+
     from tivne.slam.checkpoint import save_checkpoint
 
     make_run(tmp_path, view, {})

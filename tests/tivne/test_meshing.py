@@ -11,12 +11,12 @@ import pytest
 import torch
 import trimesh
 
-from tivne.slam.checkpoint import save_checkpoint
+from tivne.config import MeshConfig
 from tivne.field.networks import FieldOutputs, TimeVaryingField
 from tivne.field.voxels import unpack_keys
 from tivne.mesh import mesh_run, select_mesh_times
-from tivne.config import MeshConfig
 from tivne.meshing import cull_backfaces, extract_mesh, save_mesh
+from tivne.slam.checkpoint import save_checkpoint
 
 RADIUS = 0.3
 TRUNCATION = 0.05

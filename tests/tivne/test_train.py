@@ -12,8 +12,8 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from tivne.slam.checkpoint import load_checkpoint
 from tivne.geometry import read_tum_trajectory
+from tivne.slam.checkpoint import load_checkpoint
 from tivne.train import run
 
 CONF = Path(__file__).resolve().parents[2] / "conf"

@@ -7,7 +7,6 @@ an optional mask; computation is in torch on the input's device; results are pyt
 from __future__ import annotations
 
 import functools
-import math
 from pathlib import Path
 
 import numpy as np

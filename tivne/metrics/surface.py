@@ -11,8 +11,6 @@ from scipy.spatial import cKDTree
 from tivne.metrics.trajectory import ArrayLike, _as_np64
 
 
-
-
 def _as_points(x: ArrayLike, name: str) -> np.ndarray:
     p = _as_np64(x)
     if p.size == 0:

@@ -7,7 +7,6 @@ metres, angles in degrees. Metric dictionaries use the flat snake_case keys of `
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from typing import Literal
 

@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 import torch
 
-
-from data_modules.io import atomic_write, write_tum_trajectory
+from data_modules.io import atomic_write
+from data_modules.tables import write_tum_trajectory
 
 
 def jsonable(value: Any) -> Any:

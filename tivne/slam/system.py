@@ -6,7 +6,8 @@ from __future__ import annotations
 import math
 import resource
 import time
-from dataclasses import dataclass, field as dc_field
+from dataclasses import dataclass
+from dataclasses import field as dc_field
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +15,15 @@ import lightning as L
 import torch
 
 from data_modules.frame import Frame, Intrinsics
-from tivne.config import FieldConfig, LossWeights, MappingConfig, MeshConfig, OutputConfig, RenderConfig, TrackingConfig
+from tivne.config import (
+    FieldConfig,
+    LossWeights,
+    MappingConfig,
+    MeshConfig,
+    OutputConfig,
+    RenderConfig,
+    TrackingConfig,
+)
 from tivne.field.networks import TimeVaryingField, time_to_tau
 from tivne.geometry import backproject
 from tivne.masks.base import MaskContext, MaskProvider, NoMasks

@@ -7,7 +7,13 @@ import math
 import pytest
 import torch
 
-from tivne.field.networks import CanonicalMLP, DeformationMLP, FieldOutputs, TimeVaryingField, time_encoding
+from tivne.field.networks import (
+    CanonicalMLP,
+    DeformationMLP,
+    FieldOutputs,
+    TimeVaryingField,
+    time_encoding,
+)
 
 
 def randomise_output_layer(deformation: DeformationMLP, seed: int = 0, scale: float = 0.5) -> None:

@@ -280,8 +280,8 @@ def test_hits_count_observed_voxels_not_the_dilation_shell():
 
 
 def test_hits_survive_a_checkpoint_and_old_checkpoints_count_as_observed(tmp_path):
-    from tivne.slam.checkpoint import load_checkpoint, save_checkpoint
     from tivne.field.networks import TimeVaryingField
+    from tivne.slam.checkpoint import load_checkpoint, save_checkpoint
 
     kwargs = dict(time=False, voxel_size=0.1, embed_dim=4, capacity=8, hidden_dim=8, num_hidden=3, time_frequencies=1)
     field = TimeVaryingField(**kwargs)

@@ -9,7 +9,13 @@ import pytest
 import torch
 
 from data_modules.frame import Frame
-from tivne.masks.maskrcnn import INSTALL_HINT, MaskRCNNError, MaskRCNNMasks, detections_to_mask, load_maskrcnn
+from tivne.masks.maskrcnn import (
+    INSTALL_HINT,
+    MaskRCNNError,
+    MaskRCNNMasks,
+    detections_to_mask,
+    load_maskrcnn,
+)
 
 H, W = 30, 40
 

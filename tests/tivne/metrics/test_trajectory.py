@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 import torch
-import trimesh
 
 from tivne import geometry as G
 from tivne.metrics import trajectory as M

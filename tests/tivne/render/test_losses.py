@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from tivne.field.networks import FieldOutputs
 from tivne.config import LossWeights
+from tivne.field.networks import FieldOutputs
 from tivne.render.losses import balance_factors, robust_ray_mask, sdf_losses, slam_loss
 from tivne.render.rays import RayBundle
 from tivne.render.renderer import RenderBatch, RenderedRays

@@ -6,9 +6,9 @@ import pytest
 import torch
 from torch import nn
 
-from tivne.field.networks import FieldOutputs
-from tivne.geometry import pixel_to_ray, se3_exp
 from tivne.config import RenderConfig
+from tivne.field.networks import FieldOutputs
+from tivne.geometry import se3_exp
 from tivne.render.rays import RayBundle, View, rays_from_pixels
 from tivne.render.renderer import (
     bell_weights,

@@ -5,8 +5,14 @@ from __future__ import annotations
 import pytest
 import torch
 
-from tivne.config import ConfigError, SamplerConfig
-from tivne.render.samplers import PixelPool, PixelSampler, depth_guided_depths, draw, sample_from_mask
+from tivne.config import SamplerConfig
+from tivne.render.samplers import (
+    PixelPool,
+    PixelSampler,
+    depth_guided_depths,
+    draw,
+    sample_from_mask,
+)
 
 
 def masks(seed: int = 0, h: int = 12, w: int = 16):

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
+from tivne.config import LossWeights, MappingConfig, RenderConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.geometry import backproject_depth, invert_pose, se3_exp
-from tivne.config import LossWeights, MappingConfig, RenderConfig
 from tivne.render.losses import slam_loss
 from tivne.render.rays import View
 from tivne.render.renderer import render_pixels

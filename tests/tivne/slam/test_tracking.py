@@ -7,9 +7,9 @@ import math
 import pytest
 import torch
 
+from tivne.config import LossWeights, MappingConfig, RenderConfig, TrackingConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.geometry import backproject_depth, invert_pose, se3_exp
-from tivne.config import LossWeights, MappingConfig, RenderConfig, TrackingConfig
 from tivne.render.rays import View
 from tivne.render.samplers import PixelSampler
 from tivne.slam.mapping import Mapper
