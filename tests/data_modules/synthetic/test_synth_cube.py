@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from data_modules.frame import DatasetError
-from data_modules.moving_cube import CUBE_HALF, ROOM_MAX, ROOM_MIN, MovingCubeSequence
+from data_modules.synthetic.sequence import CUBE_HALF, ROOM_MAX, ROOM_MIN, MovingCubeSequence
 from tivne.geometry import invert_pose, pixel_grid, pixel_to_ray, project, transform_points
 
 
