@@ -1,5 +1,12 @@
-"""Procedural synthetic RGB-D sequences with exact ground truth."""
+"""Procedural dynamic RGB-D scenes with exact ground truth (the synthetic scene family).
 
-from data_modules.synthetic.sequence import MovingCubeSequence
+``SyntheticSequence(scene=<preset>)`` is the dataset; presets live in :mod:`.presets`. Layers, bottom
+up: :mod:`.textures`, :mod:`.shapes`, :mod:`.motion` -> :mod:`.scene` -> :mod:`.layout`,
+:mod:`.render`, :mod:`.sensor`, :mod:`.cache` -> :mod:`.presets` -> :mod:`.sequence`.
+"""
 
-__all__ = ["MovingCubeSequence"]
+from data_modules.synthetic.presets import PRESETS
+from data_modules.synthetic.sensor import SensorModel
+from data_modules.synthetic.sequence import SyntheticSequence
+
+__all__ = ["PRESETS", "SensorModel", "SyntheticSequence"]

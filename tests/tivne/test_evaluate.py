@@ -15,7 +15,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 from skimage import measure
 
-from data_modules.synthetic.sequence import MovingCubeSequence
+from data_modules.synthetic import SyntheticSequence as MovingCubeSequence
 from data_modules.sequence import SequenceView
 from tivne.evaluate import (
     MeshEvalSettings,
