@@ -44,10 +44,15 @@ def look_at(position: np.ndarray, target: np.ndarray, up: Vec3 = (0.0, 0.0, 1.0)
     """(3, 3) camera-to-world rotation (OpenCV axes) of a camera at ``position`` looking at ``target``."""
     z = target - position
     z = z / np.linalg.norm(z)
-    x = np.cross(z, np.asarray(up, dtype=np.float64))
+    x = _cross(z, np.asarray(up, dtype=np.float64))
     x = x / np.linalg.norm(x)
-    y = np.cross(z, x)
+    y = _cross(z, x)
     return np.stack([x, y, z], axis=1)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of two (3,) vectors (np.cross's arithmetic, without its per-call overhead)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 def pose_matrix(R: np.ndarray, t: np.ndarray) -> np.ndarray:

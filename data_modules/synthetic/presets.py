@@ -87,10 +87,22 @@ def _handheld(rng: np.random.Generator, room: Room, arc: float = 0.5, shake: flo
     return LookAtCamera(position, look, Shake(shake))
 
 
+def _sightlines(camera: LookAtCamera, mover: SceneObject, duration: float, step: float = 0.25) -> np.ndarray:
+    """(M, 2) floor-plane points on the segments from the camera to the mover at the same instants."""
+    pts = []
+    for t in np.arange(0.0, duration, step):
+        a, b = camera.pose(float(t))[:2, 3], mover.motion.pose(float(t))[:2, 3]
+        pts.append(a + np.linspace(0.0, 1.0, 12)[:, None] * (b - a))
+    return np.concatenate(pts)
+
+
 def _keep_out(camera: LookAtCamera, movers: tuple[SceneObject, ...]) -> list[KeepOut]:
-    """Floor-plane zones furniture must avoid: the camera path and every mover's swept path."""
-    zones: list[KeepOut] = [(swept_xy(camera.pose, _SWEEP_S), 0.5)]
-    zones += [(swept_xy(m.motion.pose, _SWEEP_S), footprint_radius(m.shape) + 0.1) for m in movers]
+    """Floor-plane zones furniture must avoid: the camera path, every mover's swept path and the lines
+    of sight between them (so furniture never hides a moving object)."""
+    zones: list[KeepOut] = [(swept_xy(camera.pose, _SWEEP_S, 0.1), 0.5)]
+    for m in movers:
+        zones += [(swept_xy(m.motion.pose, _SWEEP_S, 0.1), footprint_radius(m.shape) + 0.1),
+                  (_sightlines(camera, m, _SWEEP_S), footprint_radius(m.shape))]
     return zones
 
 

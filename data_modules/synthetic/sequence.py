@@ -49,7 +49,7 @@ def _sensor_model(preset: str, depth_noise: bool, rgb_noise: float | None, senso
             raise DatasetError(f"dataset.sensor.{key}", f"unknown sensor setting; known: {', '.join(sorted(known))}")
     if not isinstance(depth_noise, bool):
         raise DatasetError("dataset.depth_noise", f"must be true or false, got {depth_noise!r}")
-    model = replace(SensorModel(), **PRESETS[preset].sensor, **given, depth_noise=depth_noise)
+    model = replace(SensorModel(), **{**PRESETS[preset].sensor, **given}, depth_noise=depth_noise)
     if rgb_noise is not None:
         model = replace(model, rgb_noise=rgb_noise)
     for key, problem in model.problems():
