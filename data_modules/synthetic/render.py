@@ -137,8 +137,10 @@ def render_view(room: Room, placed: list[Placed], bank: TextureBank, c2w: torch.
 
     Args:
         c2w: (4, 4) camera-to-world pose.
-        rays_cam: (3, H, W) camera-frame directions with z = 1 (:func:`pixel_rays`).
-        K: (fx, fy, cx, cy) of those rays (for the culling rectangles).
+        rays_cam: (3, H, W) camera-frame directions with z = 1 through the pixel centres of ``K``
+            (:func:`pixel_rays`): the culling rectangles assume exactly this grid. For other rays use
+            :func:`~data_modules.synthetic.scene.raycast` and :meth:`TextureBank.colour`.
+        K: (fx, fy, cx, cy) of that pixel grid.
         colour: False skips shading (``rgb`` is then empty).
     """
     _, H, W = rays_cam.shape

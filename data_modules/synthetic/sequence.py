@@ -226,8 +226,11 @@ class SyntheticSequence(SequenceDataset):
                 or None for static points.
         Returns:
             (N,) bool: True where, in some such frame, the point projects into the image in front of
-            the camera and the first hit along its pixel ray is the point itself (not occluded).
+            the camera and the first surface on the ray from the camera to the point is the point
+            itself (no occluder, not a face turned away).
         """
+        if name is not None and name not in self.object_names:
+            raise KeyError(f"unknown moving object {name!r}; objects: {self.object_names}")
         p = torch.as_tensor(points, dtype=torch.float64).reshape(-1, 3)
         seen = torch.zeros(p.shape[0], dtype=torch.bool)
         K = self.intrinsics

@@ -12,6 +12,7 @@ from hydra.utils import instantiate
 
 from data_modules.frame import DatasetError
 from data_modules.synthetic import SyntheticSequence
+from data_modules.synthetic.shapes import shape_sdf
 from tivne.geometry import invert_pose, pixel_grid, pixel_to_ray, project, transform_points
 
 REPO = Path(__file__).resolve().parents[3]
@@ -42,8 +43,6 @@ def test_depth_lies_on_the_scene_and_labels_name_the_surface(busy, i):
     labels = busy.labels(i).reshape(-1)
     assert torch.equal(labels > 0, f.mask.reshape(-1))
     placed = {q.obj.name: q for q in busy.placed(t)}
-    from data_modules.synthetic.shapes import shape_sdf
-
     for k, name in enumerate(busy.object_names):  # each object's pixels lie on that object, all others don't
         q = placed[name]
         on_obj = shape_sdf(q.obj.shape, (p - q.c) @ q.R).abs() < 1e-6
@@ -115,6 +114,8 @@ def test_visibility_of_a_hidden_face():
     static_seen = ds.visible(floor, t, window=0.0)
     behind = (floor - ds.camera_pose(15)[:3, 3]) @ ds.camera_pose(15)[:3, 2] < 0
     assert not bool(static_seen[behind].any()) and bool(static_seen.any())
+    with pytest.raises(KeyError):
+        ds.visible(pts, t, name="box_a")  # a static object: its points do not move
 
 
 def test_sensor_settings_come_from_preset_then_caller():
