@@ -18,7 +18,7 @@ from data_modules.synthetic.scene import Hit, Placed, Rect, Room, raycast
 from data_modules.synthetic.shapes import CURVED, Sphere, bound_half
 from data_modules.synthetic.textures import PlaneNoise, Texture, fbm, shade
 
-__all__ = ["pixel_rays", "screen_rects", "TextureBank", "View", "render_view"]
+__all__ = ["pixel_rays", "screen_rects", "TextureBank", "View", "render_view", "pixel_flow"]
 
 
 def pixel_rays(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> torch.Tensor:
@@ -152,3 +152,30 @@ def render_view(room: Room, placed: list[Placed], bank: TextureBank, c2w: torch.
     if colour:
         rgb = bank.colour(hit.prim.reshape(-1), hit.face.reshape(-1), hit.local.reshape(3, -1)).reshape(H, W, 3)
     return View(hit.depth, rgb, hit.prim, hit.cos)
+
+
+def pixel_flow(depth: torch.Tensor, labels: torch.Tensor, rays_cam: torch.Tensor, c2w_a: torch.Tensor,
+               c2w_b: torch.Tensor, moves: list[torch.Tensor], K: tuple[float, float, float, float]) -> torch.Tensor:
+    """Where each pixel's surface point of view a appears in view b: exact scene flow, projected.
+
+    Args:
+        depth: (H, W) z-depth of view a (finite). labels: (H, W) int object ids (0 = static).
+        rays_cam: (3, H, W) the pixel grid's camera rays (:func:`pixel_rays`). c2w_a, c2w_b: (4, 4).
+        moves: (4, 4) world motion of object k from a to b (``T_k(b) T_k(a)^-1``) at index k - 1.
+        K: (fx, fy, cx, cy).
+    Returns:
+        (H, W, 2) float32 displacement (du, dv) in pixels; 0 where the point is behind camera b.
+    """
+    _, H, W = rays_cam.shape
+    fx, fy, cx, cy = K
+    p = c2w_a[:3, :3] @ (rays_cam * depth).reshape(3, -1) + c2w_a[:3, 3:]
+    flat = labels.reshape(-1)
+    for k, M in enumerate(moves, start=1):
+        sel = flat == k
+        p[:, sel] = M[:3, :3] @ p[:, sel] + M[:3, 3:]
+    q = c2w_b[:3, :3].T @ (p - c2w_b[:3, 3:])
+    z = q[2].clamp_min(1e-6)
+    u = (fx * q[0] / z + cx).view(H, W) - rays_cam[0] * fx - cx
+    v = (fy * q[1] / z + cy).view(H, W) - rays_cam[1] * fy - cy
+    flow = torch.stack([u, v], dim=-1)
+    return torch.where((q[2] > 1e-6).view(H, W, 1), flow, 0.0).to(torch.float32)

@@ -3,8 +3,9 @@
 Depth parts (all off when ``depth_noise`` is False): lateral jitter, Kinect-like axial noise
 ``sigma(z) = axial * (0.0012 + 0.0019 (z - 0.4)^2)`` metres, quantisation, dropout along depth
 discontinuities (edges) and at grazing angles, elliptical holes and sparse dropouts. Colour parts:
-exposure (gain) drift, motion blur (sub-frame renders averaged over the shutter: see
-:func:`blur_offsets`), additive noise, and 8-bit quantisation (always: the frames are a camera's).
+exposure (gain) drift, motion blur (the frame's colour averaged over the shutter at the times of
+:func:`blur_offsets`: warped along the exact per-pixel motion by :func:`smear`, or, with
+``blur_exact``, rendered at each time), additive noise, and 8-bit quantisation (always).
 
 Each part draws from its own random stream keyed by (seed, frame, part), so switching one part on or
 off, or changing its strength, leaves the realisation of every other part unchanged. A strength of 0
@@ -18,8 +19,9 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
-__all__ = ["SensorModel", "part_rng", "axial_sigma", "corrupt_depth", "corrupt_rgb", "exposure_gain", "blur_offsets"]
+__all__ = ["SensorModel", "part_rng", "axial_sigma", "corrupt_depth", "corrupt_rgb", "exposure_gain", "blur_offsets", "smear"]
 
 SENSOR_VERSION = 1
 _PART_TAGS = {"axial": 1, "edges": 2, "grazing": 3, "holes": 4, "dropout": 5, "lateral": 6, "rgb": 7, "exposure": 8}
@@ -43,6 +45,9 @@ class SensorModel:
         exposure: amplitude of the smooth exposure drift (log gain; 0.15 = +-15 % brightness).
         motion_blur: colour samples averaged over the shutter (0 or 1 = no blur).
         shutter: shutter-open fraction of the frame period (motion blur length).
+        blur_exact: render every blur sample (exact, also across occlusions, ``motion_blur`` times
+            the render cost) instead of warping the frame along its per-pixel motion (fast; a moving
+            object smears over what it covers, not over what it uncovers).
     """
 
     depth_noise: bool = True
@@ -57,13 +62,14 @@ class SensorModel:
     exposure: float = 0.0
     motion_blur: int = 0
     shutter: float = 0.5
+    blur_exact: bool = False
 
     def problems(self) -> list[tuple[str, str]]:
         """(field, what is wrong) for every out-of-range value."""
         out = []
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name == "depth_noise":
+            if f.name in ("depth_noise", "blur_exact"):
                 if not isinstance(v, bool):
                     out.append((f.name, f"must be true or false, got {v!r}"))
                 continue
@@ -184,6 +190,25 @@ def blur_offsets(model: SensorModel, fps: float) -> list[float]:
         return []
     span = model.shutter / fps
     return [span * ((k + 0.5) / n - 0.5) for k in range(n)]
+
+
+def smear(rgb: torch.Tensor, flows: list[torch.Tensor]) -> torch.Tensor:
+    """Motion blur by backward warping: the mean of ``rgb`` sampled at ``x - flow(x)`` for each flow.
+
+    Args:
+        rgb: (H, W, 3) float32 sharp colour at the frame time.
+        flows: (H, W, 2) float32 pixel displacements (du, dv) of each pixel's surface point from the
+            frame time to each blur sample's time (what pixel x shows then is what was at x - flow).
+    Returns:
+        (H, W, 3) float32.
+    """
+    H, W, _ = rgb.shape
+    img = rgb.permute(2, 0, 1)[None].expand(len(flows), 3, H, W)
+    v, u = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
+    flow = torch.stack(flows)
+    grid = torch.stack([2 * (u - flow[..., 0]) / max(W - 1, 1) - 1, 2 * (v - flow[..., 1]) / max(H - 1, 1) - 1], dim=-1)
+    out = F.grid_sample(img, grid, mode="bilinear", padding_mode="border", align_corners=True)
+    return out.mean(0).permute(1, 2, 0).contiguous()
 
 
 def corrupt_rgb(rgb: torch.Tensor, t: float, model: SensorModel, seed: int, frame: int) -> torch.Tensor:

@@ -21,9 +21,9 @@ from data_modules.frame import DatasetError, Frame, Intrinsics
 from data_modules.sequence import SequenceDataset
 from data_modules.synthetic.cache import FrameCache
 from data_modules.synthetic.presets import PRESETS, build_scene
-from data_modules.synthetic.render import TextureBank, View, pixel_rays, render_view
+from data_modules.synthetic.render import TextureBank, View, pixel_flow, pixel_rays, render_view
 from data_modules.synthetic.scene import Hit, Placed, place, raycast, sample_surface, scene_sdf
-from data_modules.synthetic.sensor import SensorModel, blur_offsets, corrupt_depth, corrupt_rgb
+from data_modules.synthetic.sensor import SensorModel, blur_offsets, corrupt_depth, corrupt_rgb, smear
 from data_modules.synthetic.shapes import bound_half
 
 __all__ = ["SyntheticSequence", "RENDER_VERSION"]
@@ -74,7 +74,8 @@ class SyntheticSequence(SequenceDataset):
             8-bit quantised.
         sensor: overrides of :class:`~data_modules.synthetic.sensor.SensorModel` fields (axial,
             edge_dropout, grazing_dropout, holes, dropout, lateral, quantization, exposure,
-            motion_blur, shutter; None values keep the preset's setting, 0 switches a part off).
+            motion_blur, shutter, blur_exact; None values keep the preset's setting, 0 switches a
+            part off).
         camera_speed, object_speed: time scales of the camera and object trajectories (0 = still).
         cache_dir: directory for rendered frames (``~`` expanded), or None for no caching. Frames go
             to ``cache_dir/<name>-<hash of every render parameter>/frame_NNNNN.npz``.
@@ -269,18 +270,27 @@ class SyntheticSequence(SequenceDataset):
             raise IndexError(f"frame {i} out of range for {self.name} with {len(self)} frames")
         t = float(self.timestamps[i])
         offsets = blur_offsets(self.sensor, self.fps) if noise else []
-        view = self._view(t, colour=not offsets)
+        exact_blur = bool(offsets) and self.sensor.blur_exact
+        view = self._view(t, colour=not exact_blur)
+        labels = (view.prim - len(self.scene.statics)).clamp_min(0)
         rgb = view.rgb
-        if offsets:  # motion blur: average colour renders over the shutter
+        if exact_blur:  # average colour renders over the shutter
             rgb = torch.stack([self._view(t + dt).rgb for dt in offsets]).mean(0)
+        elif offsets:  # warp the frame along each pixel's exact motion
+            rgb = smear(rgb, [self._flow(view.depth, labels, t, t + dt) for dt in offsets])
         if noise:
             rgb8 = corrupt_rgb(rgb, t, self.sensor, self.seed, i)
             depth = corrupt_depth(view.depth.numpy(), view.cos.numpy(), self.sensor, self.seed, i)
         else:
             rgb8, depth = (rgb.clamp(0, 1) * 255.0).round().to(torch.uint8), view.depth.numpy()
-        n_static = len(self.scene.statics)
-        labels = (view.prim - n_static).clamp_min(0).to(torch.uint8)
-        return rgb8.numpy(), depth.astype(np.float32), labels.numpy()
+        return rgb8.numpy(), depth.astype(np.float32), labels.to(torch.uint8).numpy()
+
+    def _flow(self, depth: torch.Tensor, labels: torch.Tensor, t: float, s: float) -> torch.Tensor:
+        """(H, W, 2) pixel motion of the surface seen at time ``t`` to time ``s``."""
+        a, b = self.object_poses(t), self.object_poses(s)
+        moves = [b[n] @ torch.linalg.inv(a[n]) for n in self.object_names]
+        K = self.intrinsics
+        return pixel_flow(depth, labels, self._rays, self.camera_pose_at(t), self.camera_pose_at(s), moves, (K.fx, K.fy, K.cx, K.cy))
 
     def _frame(self, i: int, rgb8: np.ndarray, depth: np.ndarray, labels: np.ndarray) -> Frame:
         frame = Frame(

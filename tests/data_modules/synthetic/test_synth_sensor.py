@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from data_modules.synthetic.sensor import (SensorModel, axial_sigma, blur_offsets, corrupt_depth, corrupt_rgb,
-                                           exposure_gain)
+                                           exposure_gain, smear)
 
 H, W = 120, 160
 OFF = SensorModel(axial=0.0, edge_dropout=0.0, grazing_dropout=0.0, holes=0.0, dropout=0.0, rgb_noise=0.0)
@@ -107,8 +107,17 @@ def test_blur_offsets_span_the_shutter():
     assert len(off) == 4 and sum(off) == pytest.approx(0.0) and off[-1] - off[0] == pytest.approx(0.6 / 30 * 3 / 4)
 
 
+def test_smear_averages_backward_warps():
+    rgb = torch.rand(H, W, 3)
+    assert torch.allclose(smear(rgb, [torch.zeros(H, W, 2)] * 3), rgb, atol=1e-4)
+    shift = torch.zeros(H, W, 2)
+    shift[..., 0] = 2.0  # the content moves 2 px right: pixel x shows what was at x - 2
+    out = smear(rgb, [torch.zeros(H, W, 2), shift])
+    assert torch.allclose(out[:, 2:], (rgb[:, 2:] + rgb[:, :-2]) / 2, atol=1e-4)  # grid_sample rounding
+
+
 def test_problems_name_the_field():
     assert SensorModel().problems() == []
-    bad = SensorModel(axial=-1.0, dropout=1.5, motion_blur=2.5, rgb_noise=float("nan"), depth_noise="yes")  # type: ignore[arg-type]
-    assert {k for k, _ in bad.problems()} == {"axial", "dropout", "motion_blur", "rgb_noise", "depth_noise"}
+    bad = SensorModel(axial=-1.0, dropout=1.5, motion_blur=2.5, rgb_noise=float("nan"), depth_noise="yes", blur_exact=1)  # type: ignore[arg-type]
+    assert {k for k, _ in bad.problems()} == {"axial", "dropout", "motion_blur", "rgb_noise", "depth_noise", "blur_exact"}
     assert not math.isnan(SensorModel().shutter)
