@@ -20,7 +20,7 @@ import numpy as np
 
 from data_modules.io import atomic_write
 
-__all__ = ["render_key", "FrameCache"]
+__all__ = ["FrameCache", "render_key"]
 
 
 def render_key(params: dict[str, object]) -> str:

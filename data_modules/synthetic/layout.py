@@ -13,7 +13,7 @@ from data_modules.synthetic.scene import Room, SceneObject
 from data_modules.synthetic.shapes import Box, Cylinder, Shape, Sphere, bound_half
 from data_modules.synthetic.textures import random_texture
 
-__all__ = ["random_room", "random_shape", "footprint_radius", "swept_xy", "KeepOut", "random_furniture"]
+__all__ = ["KeepOut", "footprint_radius", "random_furniture", "random_room", "random_shape", "swept_xy"]
 
 # (xy points (M, 2), clearance radius): furniture footprints stay this far from every point.
 KeepOut = tuple[np.ndarray, float]

@@ -19,8 +19,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["rot_x", "rot_y", "rot_z", "look_at", "pose_matrix", "Fixed", "Wobble", "Slide", "Orbit", "StopGo",
-           "Motion", "SineCurve", "CircleCurve", "YawTarget", "Shake", "LookAtCamera", "ease"]
+__all__ = [
+    "CircleCurve",
+    "Fixed",
+    "LookAtCamera",
+    "Motion",
+    "Orbit",
+    "Shake",
+    "SineCurve",
+    "Slide",
+    "StopGo",
+    "Wobble",
+    "YawTarget",
+    "ease",
+    "look_at",
+    "pose_matrix",
+    "rot_x",
+    "rot_y",
+    "rot_z",
+]
 
 Vec3 = tuple[float, float, float]
 

@@ -15,14 +15,32 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from data_modules.synthetic.layout import KeepOut, footprint_radius, random_furniture, random_room, random_shape, swept_xy
-from data_modules.synthetic.motion import (CircleCurve, Fixed, LookAtCamera, Motion, Orbit, Shake, SineCurve, Slide,
-                                           StopGo, Wobble, YawTarget)
+from data_modules.synthetic.layout import (
+    KeepOut,
+    footprint_radius,
+    random_furniture,
+    random_room,
+    random_shape,
+    swept_xy,
+)
+from data_modules.synthetic.motion import (
+    CircleCurve,
+    Fixed,
+    LookAtCamera,
+    Motion,
+    Orbit,
+    Shake,
+    SineCurve,
+    Slide,
+    StopGo,
+    Wobble,
+    YawTarget,
+)
 from data_modules.synthetic.scene import Room, Scene, SceneObject
 from data_modules.synthetic.shapes import Box, Cylinder, Shape, Sphere, bound_half
 from data_modules.synthetic.textures import Texture, random_texture
 
-__all__ = ["Preset", "PRESETS", "build_scene"]
+__all__ = ["PRESETS", "Preset", "build_scene"]
 
 _SWEEP_S = 60.0  # seconds of motion sampled for keep-out zones (every motion here is periodic)
 

@@ -18,7 +18,7 @@ from data_modules.synthetic.scene import Hit, Placed, Rect, Room, raycast
 from data_modules.synthetic.shapes import CURVED, Sphere, bound_half
 from data_modules.synthetic.textures import PlaneNoise, Texture, fbm, shade
 
-__all__ = ["pixel_rays", "screen_rects", "TextureBank", "View", "render_view", "pixel_flow"]
+__all__ = ["TextureBank", "View", "pixel_flow", "pixel_rays", "render_view", "screen_rects"]
 
 
 def pixel_rays(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> torch.Tensor:

@@ -17,7 +17,7 @@ from data_modules.synthetic.motion import LookAtCamera, Motion
 from data_modules.synthetic.shapes import Shape, box_sdf, shape_area, shape_raycast, shape_sample, shape_sdf
 from data_modules.synthetic.textures import Texture
 
-__all__ = ["SceneObject", "Room", "Scene", "Placed", "Hit", "place", "scene_sdf", "raycast", "sample_surface", "PARTS"]
+__all__ = ["PARTS", "Hit", "Placed", "Room", "Scene", "SceneObject", "place", "raycast", "sample_surface", "scene_sdf"]
 
 Vec3 = tuple[float, float, float]
 PARTS = ("all", "static", "dynamic")

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-__all__ = ["SensorModel", "part_rng", "axial_sigma", "corrupt_depth", "corrupt_rgb", "exposure_gain", "blur_offsets", "smear"]
+__all__ = ["SensorModel", "axial_sigma", "blur_offsets", "corrupt_depth", "corrupt_rgb", "exposure_gain", "part_rng", "smear"]
 
 SENSOR_VERSION = 1
 _PART_TAGS = {"axial": 1, "edges": 2, "grazing": 3, "holes": 4, "dropout": 5, "lateral": 6, "rgb": 7, "exposure": 8}

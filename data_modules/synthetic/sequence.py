@@ -26,7 +26,7 @@ from data_modules.synthetic.scene import Hit, Placed, place, raycast, sample_sur
 from data_modules.synthetic.sensor import SensorModel, blur_offsets, corrupt_depth, corrupt_rgb, smear
 from data_modules.synthetic.shapes import bound_half
 
-__all__ = ["SyntheticSequence", "RENDER_VERSION"]
+__all__ = ["RENDER_VERSION", "SyntheticSequence"]
 
 # Bump whenever the rendered images change for the same parameters, so stale caches are not reused.
 RENDER_VERSION = 2

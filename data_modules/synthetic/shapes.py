@@ -14,8 +14,20 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-__all__ = ["Box", "Sphere", "Cylinder", "Shape", "CURVED", "bound_half", "shape_sdf", "box_sdf",
-           "shape_raycast", "shape_area", "shape_sample", "planar_faces"]
+__all__ = [
+    "CURVED",
+    "Box",
+    "Cylinder",
+    "Shape",
+    "Sphere",
+    "bound_half",
+    "box_sdf",
+    "planar_faces",
+    "shape_area",
+    "shape_raycast",
+    "shape_sample",
+    "shape_sdf",
+]
 
 CURVED = 6
 _EPS_T = 1e-9  # hits nearer than this along the ray are ignored

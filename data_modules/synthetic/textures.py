@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-__all__ = ["Texture", "PlaneNoise", "value_noise", "fbm", "random_texture", "shade", "pattern_value"]
+__all__ = ["PlaneNoise", "Texture", "fbm", "pattern_value", "random_texture", "shade", "value_noise"]
 
 _M32 = 0xFFFFFFFF
 _PRIMES = (73856093, 19349663, 83492791)

@@ -20,7 +20,7 @@ ROOM_MIN, ROOM_MAX = (-2.0, -1.5, 0.0), (2.0, 1.5, 2.6)
 REFERENCE = json.loads((Path(__file__).parent / "cube_reference.json").read_text())
 
 
-def MovingCubeSequence(**kwargs) -> SyntheticSequence:  # noqa: N802 -- the original class's name and defaults
+def MovingCubeSequence(**kwargs) -> SyntheticSequence:  # the original class: its name and defaults, scene=cube
     return SyntheticSequence(**{"scene": "cube", **kwargs})
 
 

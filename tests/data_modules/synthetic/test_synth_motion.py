@@ -7,8 +7,19 @@ import math
 import numpy as np
 import pytest
 
-from data_modules.synthetic.motion import (CircleCurve, Fixed, LookAtCamera, Orbit, Shake, SineCurve, Slide, StopGo,
-                                           Wobble, YawTarget, look_at)
+from data_modules.synthetic.motion import (
+    CircleCurve,
+    Fixed,
+    LookAtCamera,
+    Orbit,
+    Shake,
+    SineCurve,
+    Slide,
+    StopGo,
+    Wobble,
+    YawTarget,
+    look_at,
+)
 
 
 def _is_rigid(T: np.ndarray) -> bool:

@@ -9,8 +9,15 @@ import numpy as np
 import pytest
 import torch
 
-from data_modules.synthetic.sensor import (SensorModel, axial_sigma, blur_offsets, corrupt_depth, corrupt_rgb,
-                                           exposure_gain, smear)
+from data_modules.synthetic.sensor import (
+    SensorModel,
+    axial_sigma,
+    blur_offsets,
+    corrupt_depth,
+    corrupt_rgb,
+    exposure_gain,
+    smear,
+)
 
 H, W = 120, 160
 OFF = SensorModel(axial=0.0, edge_dropout=0.0, grazing_dropout=0.0, holes=0.0, dropout=0.0, rgb_noise=0.0)

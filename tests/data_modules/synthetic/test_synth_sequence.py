@@ -100,7 +100,7 @@ def test_visibility_of_a_hidden_face():
     ds = SyntheticSequence(scene="cube", num_frames=30, width=80, height=60, depth_noise=False, rgb_noise=0.0)
     t = float(ds.timestamps[15])
     pts = ds.sample_surface(t, 3000, name="cube", seed=0)
-    c, h, R = ds.dynamic_box(t)
+    c, _, R = ds.dynamic_box(t)
     local = (pts - c) @ R
     axis = local.abs().argmax(-1)
     normal = torch.zeros_like(local).scatter_(1, axis[:, None], torch.sign(local.gather(1, axis[:, None]))) @ R.T

@@ -7,8 +7,18 @@ import math
 import pytest
 import torch
 
-from data_modules.synthetic.shapes import (CURVED, Box, Cylinder, Sphere, bound_half, planar_faces, shape_area,
-                                           shape_raycast, shape_sample, shape_sdf)
+from data_modules.synthetic.shapes import (
+    CURVED,
+    Box,
+    Cylinder,
+    Sphere,
+    bound_half,
+    planar_faces,
+    shape_area,
+    shape_raycast,
+    shape_sample,
+    shape_sdf,
+)
 
 SHAPES = [Box((0.3, 0.2, 0.1)), Sphere(0.25), Cylinder(0.2, 0.3)]
 
