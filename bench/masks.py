@@ -1,7 +1,8 @@
-"""Motion-mask quality (and optionally SLAM ATE) per provider on the moving-cube sequence.
+"""Motion-mask quality (and optionally SLAM ATE) per provider on a synthetic sequence (the moving cube
+by default, any preset of the synthetic scene family with --scene).
 
     python bench/masks.py [--providers dataset,geometric,none] [--frames 60] [--width 160 --height 120]
-                          [--no-slam] [--maskrcnn-weights PATH] [--set [provider:]key=value ...]
+                          [--scene crossing] [--no-slam] [--maskrcnn-weights PATH] [--set [provider:]key=value ...]
 
 e.g. ``--set geometric:masks.provider.stride=2`` (every 2nd pixel at 160x120 ~ every 8th at 640x480).
 
@@ -70,7 +71,9 @@ def compose(name: str, args: argparse.Namespace):
     from hydra import compose as hcompose
     from hydra import initialize_config_dir
 
+    scene = [] if args.scene is None else ["dataset=synthetic", f"dataset.scene={args.scene}"]
     overrides = [
+        *scene,
         f"masks={name}",
         f"dataset.width={args.width}",
         f"dataset.height={args.height}",
@@ -128,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--width", type=int, default=160)
     parser.add_argument("--height", type=int, default=120)
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--scene", default=None, help="synthetic preset (dataset=synthetic dataset.scene=SCENE); default dataset=cube")
     parser.add_argument("--no-slam", action="store_true", help="no SLAM (no ATE); pose-free providers only")
     parser.add_argument("--maskrcnn-weights", default=None, help="state dict of maskrcnn_resnet50_fpn (adds maskrcnn)")
     parser.add_argument("--set", action="append", default=[],
@@ -146,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in names:
         results[name] = (run_frames if args.no_slam else run_slam)(name, args)
         print(name, json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in results[name].items()}), flush=True)
-    print(f"\n{args.width}x{args.height}, {args.frames} frames; mean over frames (t>=1s: from the second second on)")
+    print(f"\n{args.scene or 'cube'}, {args.width}x{args.height}, {args.frames} frames; mean over frames (t>=1s: from the second second on)")
     header = f"{'provider':<10} {'IoU':>6} {'P':>6} {'R':>6} | {'IoU≥1s':>6} {'P≥1s':>6} {'R≥1s':>6} | {'ms/fr':>6} {'ATE cm':>7}"
     print(header)
     for name, r in results.items():

@@ -8,9 +8,11 @@ import pytest
 @pytest.fixture(scope="session")
 def tiny_cube():
     """Noise-free 80x60 moving-cube sequence with 6 frames and no cache (renders in milliseconds)."""
-    from data_modules.moving_cube import MovingCubeSequence
+    from data_modules.synthetic import SyntheticSequence
 
-    return MovingCubeSequence(num_frames=6, width=80, height=60, depth_noise=False, rgb_noise=0.0, cache_dir=None)
+    return SyntheticSequence(
+        scene="cube", name="cube", num_frames=6, width=80, height=60, depth_noise=False, rgb_noise=0.0, cache_dir=None
+    )
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -36,9 +36,10 @@ import trimesh
 from omegaconf import OmegaConf
 
 from data_modules.frame import DatasetError
+from data_modules.tables import read_tum_trajectory
 from tivne.config import MeshConfig, MeshEvalSettings
 from tivne.field.networks import time_to_tau
-from tivne.geometry import backproject, pixel_grid, read_tum_trajectory
+from tivne.geometry import backproject, pixel_grid
 from tivne.meshing import extract_mesh
 from tivne.metrics.surface import nearest_distances, sample_mesh_surface
 from tivne.metrics.trajectory import ate_from_trajectories

@@ -18,8 +18,8 @@ from data_modules.poses import (  # noqa: F401
     quat_to_matrix,
 )
 
-# Pose helpers and TUM trajectory files live in the data layer (readers need them); re-exported
-# here so tivne code keeps importing them from tivne.geometry.
+# The pose helpers live in the data layer (readers need them); re-exported here so that tivne's
+# camera and SE(3) math has one home. Trajectory files: data_modules.tables.
 
 
 def intrinsics_to_K(intr: Intrinsics, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:

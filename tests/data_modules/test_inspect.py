@@ -111,7 +111,7 @@ def test_cli_text_gt_and_sheet(tmp_path):
     assert res.returncode == 0, res.stderr
     assert "frames:       5" in res.stdout and "80 x 60" in res.stdout and "sampled 5 of 5" in res.stdout
     ts, poses = read_tum_trajectory(tmp_path / "gt.txt")
-    from data_modules.moving_cube import MovingCubeSequence
+    from data_modules.synthetic import SyntheticSequence as MovingCubeSequence
 
     ds = MovingCubeSequence(num_frames=5, width=80, height=60)
     assert np.allclose(ts, ds.timestamps, atol=1e-6)

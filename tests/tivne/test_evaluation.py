@@ -15,8 +15,9 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 from skimage import measure
 
-from data_modules.moving_cube import MovingCubeSequence
 from data_modules.sequence import SequenceView
+from data_modules.synthetic import SyntheticSequence as MovingCubeSequence
+from data_modules.tables import write_tum_trajectory
 from tivne.cli import register_defaults
 from tivne.config import MeshEvalSettings
 from tivne.evaluation import (
@@ -25,7 +26,6 @@ from tivne.evaluation import (
     in_boxes,
     trajectory_metrics,
 )
-from tivne.geometry import write_tum_trajectory
 from tivne.meshing import save_mesh
 from tivne.slam.outputs import RunDir
 

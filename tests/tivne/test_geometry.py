@@ -210,23 +210,3 @@ class TestDataLayerReExports:
 
         for name in ("quat_to_matrix", "matrix_to_quat", "pose_from_tq", "orthonormalize_pose"):
             assert getattr(G, name) is getattr(poses, name), name
-
-    def test_trajectory_files_are_the_data_layer_functions(self):
-        from data_modules import io
-
-        assert G.read_tum_trajectory is io.read_tum_trajectory
-        assert G.write_tum_trajectory is io.write_tum_trajectory
-
-
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA not available")
-class TestCuda:
-    def test_se3_and_projection_on_cuda(self, intr):
-        xi = torch.randn(4, 6, dtype=F64, device="cuda") * 0.5
-        T = G.se3_exp(xi)
-        assert T.device.type == "cuda"
-        assert torch.allclose(G.se3_log(T).cpu(), xi.cpu(), atol=1e-8)
-        K = G.intrinsics_to_K(intr, device="cuda")
-        depth = torch.full((intr.height, intr.width), 2.0, device="cuda")
-        pts = G.backproject_depth(depth, K)
-        uv, z = G.project(G.transform_points(G.invert_pose(T[0].float()), G.transform_points(T[0].float(), pts)), K)
-        assert torch.allclose(uv, G.pixel_grid(intr.height, intr.width, device="cuda"), atol=1e-2)

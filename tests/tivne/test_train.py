@@ -12,7 +12,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from tivne.geometry import read_tum_trajectory
+from data_modules.tables import read_tum_trajectory
 from tivne.slam.checkpoint import load_checkpoint
 from tivne.train import run
 

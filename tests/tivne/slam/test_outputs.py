@@ -8,7 +8,7 @@ import math
 import numpy as np
 import torch
 
-from tivne.geometry import read_tum_trajectory
+from data_modules.tables import read_tum_trajectory
 from tivne.slam.outputs import RunDir, image_panels
 
 

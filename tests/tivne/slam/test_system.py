@@ -11,7 +11,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from tivne.geometry import read_tum_trajectory
+from data_modules.tables import read_tum_trajectory
 from tivne.slam.mapping import final_pass
 from tivne.train import build_system
 

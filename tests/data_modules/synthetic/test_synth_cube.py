@@ -1,25 +1,48 @@
-"""The synthetic moving-cube sequence: exact geometry, masks, noise, determinism and the frame cache."""
+"""The ``cube`` preset: today's moving-cube scene reproduced (stored reference renders of the original
+``MovingCubeSequence``), exact geometry, masks, noise, determinism and the frame cache."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from data_modules.frame import DatasetError
-from data_modules.moving_cube import CUBE_HALF, ROOM_MAX, ROOM_MIN, MovingCubeSequence
-from tivne.geometry import (
-    invert_pose,
-    pixel_grid,
-    pixel_to_ray,
-    project,
-    transform_points,
-)
+from data_modules.synthetic import SyntheticSequence
+from tivne.geometry import invert_pose, pixel_grid, pixel_to_ray, project, transform_points
+
+CUBE_HALF = 0.18
+ROOM_MIN, ROOM_MAX = (-2.0, -1.5, 0.0), (2.0, 1.5, 2.6)
+REFERENCE = json.loads((Path(__file__).parent / "cube_reference.json").read_text())
 
 
-def _world_rays(ds: MovingCubeSequence, i: int) -> tuple[torch.Tensor, torch.Tensor]:
+def MovingCubeSequence(**kwargs) -> SyntheticSequence:  # the original class: its name and defaults, scene=cube
+    return SyntheticSequence(**{"scene": "cube", **kwargs})
+
+
+@pytest.mark.parametrize("case", REFERENCE["cases"], ids=lambda c: f"{c['width']}x{c['height']}-f{c['frame']}")
+def test_matches_the_original_moving_cube_renders(case):
+    """Noise-free frames equal the original class's: depth to 1e-6 m, colour to one 8-bit level, same mask."""
+    ds = MovingCubeSequence(num_frames=case["num_frames"], fps=case["fps"], width=case["width"], height=case["height"])
+    f = ds.render(case["frame"], noise=False)
+    rows, cols = torch.tensor(case["rows"]), torch.tensor(case["cols"])
+    depth = f.depth.double()[rows[:, None], cols[None, :]]
+    assert torch.allclose(depth, torch.tensor(case["depth"], dtype=torch.float64), atol=1e-6, rtol=0)
+    rgb8 = (f.rgb * 255).round().long()[rows[:, None], cols[None, :]]
+    assert int((rgb8 - torch.tensor(case["rgb8"])).abs().max()) <= 1
+    assert float(f.depth.double().mean()) == pytest.approx(case["depth_mean"], abs=1e-6)
+    assert np.allclose((f.rgb * 255).round().reshape(-1, 3).mean(0).numpy(), case["rgb_mean"], atol=0.01)
+    vv, uu = torch.nonzero(f.mask, as_tuple=True)
+    assert int(f.mask.sum()) == case["mask_pixels"]
+    assert [int(vv.min()), int(vv.max()), int(uu.min()), int(uu.max())] == case["mask_box"]
+    assert torch.allclose(f.gt_pose, torch.tensor(case["pose"], dtype=torch.float64), atol=1e-11)
+
+
+def _world_rays(ds: SyntheticSequence, i: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Camera centre (3,) and (H, W, 3) world ray directions with camera z = 1 for frame i."""
     K = ds.intrinsics.K(dtype=torch.float64)
     d_cam = pixel_to_ray(pixel_grid(ds.height, ds.width, dtype=torch.float64), K)
@@ -62,6 +85,10 @@ def test_frames_intrinsics_and_timestamps(tiny_cube):
         ({"seed": -1}, "seed"),
         ({"camera_speed": float("inf")}, "camera_speed"),
         ({"rgb_noise": -0.1}, "rgb_noise"),
+        ({"scene": "kitchen"}, "scene"),
+        ({"sensor": {"axial": -1.0}}, "sensor.axial"),
+        ({"sensor": {"blur": 3}}, "sensor.blur"),
+        ({"depth_noise": "yes"}, "depth_noise"),
     ],
 )
 def test_bad_kwargs_raise_dataset_error(kwargs, param):
@@ -245,16 +272,16 @@ def test_cache_round_trip_and_corrupt_recovery(tmp_path, monkeypatch):
     kw = dict(num_frames=4, width=80, height=60, seed=1)
     ds = MovingCubeSequence(cache_dir=str(tmp_path), **kw)
     frame = ds[2]
-    files = list(tmp_path.glob("cube-*/frame_00002.npz"))
-    assert len(files) == 1 and files[0].parent.name == f"cube-{ds.render_key()}"
-    assert not list(tmp_path.glob("cube-*/*.tmp"))
+    files = list(tmp_path.glob("synthetic_cube-*/frame_00002.npz"))
+    assert len(files) == 1 and files[0].parent.name == f"synthetic_cube-{ds.render_key()}"
+    assert not list(tmp_path.glob("synthetic_cube-*/.*.tmp"))
     uncached = MovingCubeSequence(**kw)[2]
 
     def no_render(*args, **kwargs):
         raise AssertionError("rendered although the frame is cached")
 
     again = MovingCubeSequence(cache_dir=str(tmp_path), **kw)
-    monkeypatch.setattr(again, "render", no_render)
+    monkeypatch.setattr(again, "render_arrays", no_render)
     cached = again[2]
     for f in (cached, uncached):
         assert torch.equal(f.rgb, frame.rgb) and torch.equal(f.depth, frame.depth)
