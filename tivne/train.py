@@ -7,6 +7,7 @@ before any data is read, composes the typed stages and hands them to the Lightni
 from __future__ import annotations
 
 import json
+import sys
 import typing
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,7 +41,7 @@ from tivne.render.samplers import PixelSampler
 from tivne.slam.keyframes import KeyframePolicy
 from tivne.slam.outputs import RunDir
 from tivne.slam.system import TivNeSLAM
-from tivne.utils import configure_runtime
+from tivne.utils import RunInterrupted, configure_runtime, interrupt_signals
 
 register_defaults()
 
@@ -119,13 +120,19 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
         enable_progress_bar=settings.trainer.progress_bar,
         default_root_dir=str(run_dir),
     )
-    trainer.fit(system, datamodule=datamodule)
-    metrics = dict(system.last_metrics)
-    if settings.output.evaluate:
-        extra = evaluate_run(
-            Path(run_dir), dataset_view=datamodule.view, mesh_resolution=settings.mesh.resolution, mesh_culling=settings.mesh
-        )
-        metrics = RunDir(run_dir).merge_metrics(extra)
+    try:
+        with interrupt_signals():
+            trainer.fit(system, datamodule=datamodule)
+            metrics = dict(system.last_metrics)
+            if settings.output.evaluate:
+                extra = evaluate_run(
+                    Path(run_dir), dataset_view=datamodule.view, mesh_resolution=settings.mesh.resolution, mesh_culling=settings.mesh
+                )
+                metrics = RunDir(run_dir).merge_metrics(extra)
+    except RunInterrupted as exc:
+        if not system.last_metrics.get("complete"):  # a second signal now is the default action: exit at once
+            system.save_partial(f"interrupted by {exc} after {len(system.trajectory)} frames")
+        raise
     return metrics
 
 
@@ -133,7 +140,11 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
 @one_line_errors
 def main(cfg: DictConfig) -> float | None:
     run_dir = HydraConfig.get().runtime.output_dir
-    metrics = run(cfg, run_dir)
+    try:
+        metrics = run(cfg, run_dir)
+    except RunInterrupted as exc:
+        print(f"interrupted by {exc}: partial results (complete: false) in {run_dir}", file=sys.stderr)
+        sys.exit(exc.exit_code)
     keys = ["frames", "s_per_frame", "track_ms_per_iter", "map_ms_per_iter", "ate_rmse_m", "peak_rss_mb"]
     print(json.dumps({k: metrics.get(k) for k in keys}))
     print(f"results in {run_dir}")

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
+import signal
+import threading
 
 import torch
 
@@ -37,3 +40,39 @@ def configure_runtime(threads: int | None = None, allocator: bool = True) -> dic
     if threads:
         torch.set_num_threads(int(threads))
     return {"threads": torch.get_num_threads(), "allocator_tuned": tune_allocator() if allocator else False}
+
+
+class RunInterrupted(BaseException):
+    """Raised in the main thread by SIGINT / SIGTERM (see :func:`interrupt_signals`).
+
+    A BaseException, like KeyboardInterrupt, so that no ``except Exception`` on the way swallows it;
+    not a KeyboardInterrupt, so that Lightning re-raises it instead of exiting on its own.
+    """
+
+    def __init__(self, signum: int) -> None:
+        self.signum = int(signum)
+        super().__init__(signal.Signals(self.signum).name)
+
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal number (130 for SIGINT, 143 for SIGTERM), as a shell reports it."""
+        return 128 + self.signum
+
+
+@contextlib.contextmanager
+def interrupt_signals(signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)):
+    """Within the block, the given signals raise :class:`RunInterrupted` (the previous handlers
+    come back afterwards); outside the main thread this is a no-op."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise RunInterrupted(signum)
+
+    previous = {s: signal.signal(s, handler) for s in signums}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)

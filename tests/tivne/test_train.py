@@ -36,7 +36,7 @@ def test_every_combination_runs(tmp_path, field, sampler, keyframe):
     assert math.isfinite(metrics["s_per_frame"]) and metrics["s_per_frame"] > 0
     assert metrics["ate_rmse_m"] is not None and metrics["ate_rmse_m"] < 0.05
     on_disk = json.loads((tmp_path / "metrics.json").read_text())
-    assert on_disk["frames"] == 5
+    assert on_disk["frames"] == 5 and on_disk["complete"] is True
     assert (tmp_path / "checkpoints" / "slam.pt").is_file()
     field_back, meta = load_checkpoint(tmp_path / "checkpoints" / "slam.pt")
     assert field_back.time == (field == "tivne") and len(meta["timestamps"]) == 5

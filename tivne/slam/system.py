@@ -232,16 +232,29 @@ class TivNeSLAM(L.LightningModule):
     def finalize(self) -> dict[str, Any]:
         """Write trajectory.txt, the checkpoint, renders, meshes and metrics.json into the run dir."""
         self.write_trajectory()
-        save_checkpoint(
-            self.run.checkpoint, self.field, self.field_cfg.field_kwargs(), self.trajectory.timestamps(),
-            self.poses(), self.t0, extra={"keyframes": self.db.frame_ids()},
-        )
+        self.save_checkpoint()
         for view in (self.db.views[0], self.db.views[-1]):
             for name, img in self.render_panels(view, stride=2).items():
                 self.run.write_image(self.run.render_path(view.frame_id, name), img)
-        metrics = self.run_metrics() | self._write_meshes()
+        metrics = self.run_metrics() | self._write_meshes() | {"complete": True}
         self.last_metrics = self.run.merge_metrics(metrics)
         return self.last_metrics
+
+    def save_partial(self, reason: str) -> dict[str, Any]:
+        """After an interruption: trajectory, checkpoint and metrics.json with ``complete: false``
+        (no final pass, renders or meshes: those need the whole sequence)."""
+        if not len(self.trajectory):
+            return {}
+        self.write_trajectory()
+        self.save_checkpoint()
+        self.last_metrics = self.run.merge_metrics(self.run_metrics() | {"complete": False, "complete_reason": reason})
+        return self.last_metrics
+
+    def save_checkpoint(self) -> Path:
+        return save_checkpoint(
+            self.run.checkpoint, self.field, self.field_cfg.field_kwargs(), self.trajectory.timestamps(),
+            self.poses(), self.t0, extra={"keyframes": self.db.frame_ids()},
+        )
 
     def run_metrics(self) -> dict[str, Any]:
         """Speed, memory, map size and ATE of the run so far (metrics.json keys)."""

@@ -1,0 +1,57 @@
+"""SIGINT / SIGTERM in the middle of a run: results written, metrics marked incomplete, exit 130 / 143."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from data_modules.tables import read_tum_trajectory
+from tivne.slam.checkpoint import load_checkpoint
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def start_run(run_dir: Path) -> subprocess.Popen:
+    args = [
+        "experiment=smoke", "dataset.cache_dir=null", "dataset.width=80", "dataset.height=60", "dataset.num_frames=400",
+        "data.max_frames=400", "output.save_every=1", "trainer.progress_bar=false", f"hydra.run.dir={run_dir}",
+    ]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-m", "tivne.train", *args], cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for_frames(run_dir: Path, proc: subprocess.Popen, frames: int, timeout: float = 240.0) -> None:
+    path = run_dir / "trajectory.txt"
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()[1][-2000:]
+        if path.is_file() and len(path.read_text().splitlines()) > frames:
+            return
+        time.sleep(0.2)
+    proc.kill()
+    pytest.fail("the run did not reach the frame count in time")
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_signal_writes_partial_results_and_exits_nonzero(tmp_path, signum, code):
+    run_dir = tmp_path / "run"
+    proc = start_run(run_dir)
+    wait_for_frames(run_dir, proc, 4)
+    proc.send_signal(signum)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == code, stderr[-2000:]
+    assert "Traceback" not in stderr and "interrupted by " + signal.Signals(signum).name in stderr
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert metrics["complete"] is False and signal.Signals(signum).name in metrics["complete_reason"]
+    ts, _ = read_tum_trajectory(run_dir / "trajectory.txt")
+    assert len(ts) == metrics["frames"] >= 4
+    _, meta = load_checkpoint(run_dir / "checkpoints" / "slam.pt")
+    assert len(meta["timestamps"]) == len(ts)
+    assert not list(run_dir.rglob("*.tmp"))
