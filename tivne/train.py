@@ -36,6 +36,7 @@ from tivne.config import (
 )
 from tivne.evaluation import evaluate_run
 from tivne.masks.base import MaskProvider
+from tivne.meshing import select_mesh_times
 from tivne.render.samplers import PixelSampler
 from tivne.slam.keyframes import KeyframePolicy
 from tivne.slam.outputs import RunDir
@@ -105,6 +106,7 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     dataset = instantiate(cfg.dataset)
     datamodule = SequenceDataModule(dataset, **plain(cfg.data))
+    select_mesh_times(datamodule.view.timestamps, list(settings.mesh.times) or None)  # refuse bad times before the run
     system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks)
     trainer = L.Trainer(
         max_epochs=1,
