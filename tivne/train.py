@@ -124,9 +124,7 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     trainer.fit(system, datamodule=datamodule)
     metrics = dict(system.last_metrics)
     if settings.output.evaluate:
-        extra = evaluate_run(
-            Path(run_dir), dataset_view=datamodule.view, mesh_resolution=settings.mesh.resolution, mesh_culling=settings.mesh
-        )
+        extra = evaluate_run(Path(run_dir), datamodule.view, settings.mesh, render=settings.render)
         metrics = RunDir(run_dir).merge_metrics(extra)
     return metrics
 
