@@ -102,7 +102,7 @@ def test_perfect_run_scores_perfectly(tmp_path, view, gt_meshes):
     assert m["mesh_t3.00_ghost_fraction"] == m["ghost_fraction_last"] <= m["ghost_fraction_max"]
     assert m["object_chamfer_max_m"] < 0.01 and m["object_chamfer_mean_m"] <= m["object_chamfer_max_m"]
     assert m["mesh_eval_frame"] == "first_camera" and m["mesh_eval_times"] == [0.0, 3.0] and m["mesh_eval_window_s"] == 0.5
-    assert "psnr_reason" in m and m["psnr_db"] is None  # no checkpoint to render
+    assert m["psnr_db"] is None and m["ssim"] is None and "checkpoint" in m["psnr_reason"] == m["ssim_reason"]  # nothing to render
     json.dumps(m, allow_nan=False)  # JSON-serialisable, no NaN
 
     ate_frame = evaluate_run(run_dir, view, settings=FAST, frame="ate")
@@ -126,7 +126,7 @@ def test_checkpoint_meshes_images_and_reasons(tmp_path, view):
     save_sphere_checkpoint(tmp_path, view)
     m = evaluate_run(tmp_path, view, MeshConfig(resolution=0.05), settings=FAST)
     # A 0.3 m sphere around the first camera: nothing near the cube, all of it ghost.
-    assert m["cube_accuracy_first_m"] is None and "box" in m["mesh_t0.00_cube_reason"]
+    assert m["cube_accuracy_first_m"] is None and "box" in m["mesh_t0.00_cube_reason"] == m["cube_accuracy_first_reason"]
     assert m["cube_completion_ratio_first"] == 0.0 and m["ghost_fraction_first"] == 1.0
     assert 0 <= m["static_completion_ratio_last"] < 0.05
     assert "cube at t=0.00" in m["object_chamfer_reason"]

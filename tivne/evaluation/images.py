@@ -77,6 +77,15 @@ def render_frames(
     return frames
 
 
+def null_images(reason: str) -> dict[str, Any]:
+    """Every image value null, each with its ``*_reason`` (``psnr_db`` -> ``psnr_reason``)."""
+    out: dict[str, Any] = {"psnr_frames": 0}
+    for key in IMAGE_KEYS[:-1]:
+        out[key] = None
+        out[key.removesuffix("_db") + "_reason"] = reason
+    return out
+
+
 def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
@@ -91,7 +100,7 @@ def image_metrics(frames: Sequence[RenderedFrame]) -> dict[str, Any]:
     """
     used = [f for f in frames if bool(f.valid.any())]
     if not used:
-        return {**{k: None for k in IMAGE_KEYS}, "psnr_frames": 0, "psnr_reason": "no re-rendered frame has a pixel with depth"}
+        return null_images("no re-rendered frame has a pixel with depth")
     valid = torch.stack([f.valid for f in used])  # (B, H, W)
     keep = valid[..., None].float()
     pred = (torch.stack([f.rgb for f in used]).float() * keep).permute(0, 3, 1, 2)  # (B, 3, H, W)

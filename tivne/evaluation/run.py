@@ -20,7 +20,7 @@ from data_modules.sequence import SequenceDataset, SequenceView
 from data_modules.tables import read_tum_trajectory
 from tivne.config import ConfigError, MeshConfig, MeshEvalSettings, RenderConfig
 from tivne.evaluation.ground_truth import GroundTruth, as_view, ground_truth_of
-from tivne.evaluation.images import image_metrics, render_frames
+from tivne.evaluation.images import image_metrics, null_images, render_frames
 from tivne.evaluation.surfaces import flatten_mesh_metrics, mesh_time_metrics
 from tivne.field.networks import TimeVaryingField, time_to_tau
 from tivne.meshing import TIME_TOLERANCE_S, extract_mesh, select_mesh_times
@@ -130,7 +130,7 @@ def image_section(record: RunRecord, view: SequenceView, render: RenderConfig, s
     if settings.render_every == 0:
         return {"psnr_reason": "settings.render_every=0"}
     if record.field is None:
-        return {"psnr_db": None, "ssim": None, "psnr_reason": f"no checkpoint ({RunDir.CHECKPOINT})"}
+        return null_images(f"no checkpoint ({RunDir.CHECKPOINT})")
     frames = render_frames(record.field, record.meta, view, render, settings.render_every, settings.render_stride)
     return image_metrics(frames)
 

@@ -194,17 +194,25 @@ def flatten_mesh_metrics(
         first, last: the processed frames' first / last time when it is one of ``per_time``'s keys.
     Returns:
         ``mesh_t{t:.2f}_<name>`` for every value; ``<name>_first`` / ``<name>_last`` (unit last:
-        ``cube_accuracy_first_m``) for the scene values and the objects' :data:`OBJECT_VALUES`;
+        ``cube_accuracy_first_m``, null with ``cube_accuracy_first_reason``) for the scene values
+        and the objects' :data:`OBJECT_VALUES`;
         ``object_chamfer_mean_m`` / ``object_chamfer_max_m`` over every object and time, and
         ``ghost_fraction_max`` over the times (null with a ``*_reason`` when nothing was computable).
     """
     out: dict[str, Any] = {}
     for t, values in per_time.items():
         out.update({f"{time_label(t)}_{k}": v for k, v in values.items()})
-    summarised = list(SCENE_VALUES) + [f"{o}_{k}" for o in objects for k in OBJECT_VALUES]
+    # Each summarised value with the key of the reason it may be null for.
+    summarised = {"ghost_fraction": "reason", **{k: "static_reason" for k in SCENE_VALUES[1:]}}
+    summarised.update({f"{o}_{k}": f"{o}_reason" for o in objects for k in OBJECT_VALUES})
     for label, t in (("first", first), ("last", last)):
-        if t is not None and t in per_time:
-            out.update({with_label(k, label): per_time[t].get(k) for k in summarised})
+        if t is None or t not in per_time:
+            continue
+        for name, why in summarised.items():
+            key = with_label(name, label)
+            out[key] = per_time[t].get(name)
+            if out[key] is None:  # cube_accuracy_first_m -> cube_accuracy_first_reason
+                out[key.removesuffix("_m") + "_reason"] = per_time[t].get(why) or per_time[t].get("reason") or "not computable"
     chamfers = {(o, t): v.get(f"{o}_chamfer_m") for t, v in per_time.items() for o in objects}
     known = [c for c in chamfers.values() if c is not None]
     out["object_chamfer_mean_m"] = float(np.mean(known)) if known else None
