@@ -37,12 +37,17 @@ FIGURES = [
     ("ate_max_m", "ATE max cm", "{:.2f}", 100.0),
     ("cube_accuracy_first_m", "cube accuracy @first cm", "{:.2f}", 100.0),
     ("cube_accuracy_last_m", "cube accuracy @last cm", "{:.2f}", 100.0),
-    ("cube_completion_ratio_first", "cube completion @5cm, first", "{:.3f}"),
-    ("cube_completion_ratio_last", "cube completion @5cm, last", "{:.3f}"),
+    ("cube_completion_ratio_first", "cube completion @5cm seen ±0.5s, first", "{:.3f}"),
+    ("cube_completion_ratio_last", "cube completion @5cm seen ±0.5s, last", "{:.3f}"),
+    ("object_chamfer_mean_m", "moving objects Chamfer mean cm", "{:.2f}", 100.0),
+    ("object_chamfer_max_m", "moving objects Chamfer max cm", "{:.2f}", 100.0),
     ("ghost_fraction_first", "ghost fraction @first", "{:.3f}"),
     ("ghost_fraction_last", "ghost fraction @last", "{:.3f}"),
+    ("ghost_fraction_max", "ghost fraction max", "{:.3f}"),
     ("static_completion_ratio_first", "static completion @5cm, first", "{:.3f}"),
     ("static_completion_ratio_last", "static completion @5cm, last", "{:.3f}"),
+    ("psnr_db", "PSNR dB (re-rendered, pixels with depth)", "{:.2f}"),
+    ("ssim", "SSIM (re-rendered, pixels with depth)", "{:.3f}"),
 ]
 
 

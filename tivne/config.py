@@ -317,25 +317,31 @@ class OutputConfig(Settings):
 
 @dataclass(frozen=True)
 class MeshEvalSettings(Settings):
-    """Knobs of the mesh evaluation (``tivne.evaluate``'s ``settings``; sample counts trade time for
-    the estimates' noise). threshold_m: completion / ghost distance; cube_margin_m: dilation of a
-    moving object's GT box for its region; pred_samples / gt_samples / dynamic_samples: samples on
-    the reconstructed mesh, the GT surface and the GT moving objects; static_every / static_per_frame:
-    the observed static surface from every k-th processed frame, this many random pixels each.
+    """Knobs of the evaluation against ground truth (``tivne.evaluate``'s ``settings``; sample counts
+    trade time for the estimates' noise; definitions in :mod:`tivne.evaluation.surfaces`).
 
-    Distances to the mesh are distances to ``pred_samples`` area-uniform samples on it, so a
-    completion ratio at ``threshold_m`` is only exact when a disc of that radius holds several samples:
-    200k samples on a ~60 m^2 room give ~26 per 5 cm disc (a miss probability of e^-26).
+    threshold_m: completion-ratio and ghost distance. object_margin_m: dilation of a moving object's
+    GT box; the mesh inside counts as that object. window_s: a moving object's surface counts as
+    observed at mesh time t when a camera saw it within ± this many seconds of t (completion is
+    judged on that part). pred_samples: samples on the whole mesh; object_samples: on the mesh near
+    each object and on each object's GT surface; static_samples: on the GT static surface.
+    render_every: re-render every k-th processed frame for PSNR / SSIM (0 = no image metrics);
+    render_stride: every n-th pixel of those frames.
+
+    Distances to the mesh are distances to area-uniform samples on it, so a completion ratio at
+    ``threshold_m`` is only exact when a disc of that radius holds several samples: 200k samples on
+    a ~60 m^2 room give ~26 per 5 cm disc (a miss probability of e^-26).
     """
 
     section: ClassVar[str] = "settings"
     threshold_m: float = setting(0.05, gt=0)
-    cube_margin_m: float = setting(0.05, ge=0)
+    object_margin_m: float = setting(0.05, ge=0)
+    window_s: float = setting(0.5, ge=0)
     pred_samples: int = setting(200_000, ge=1)
-    gt_samples: int = setting(200_000, ge=1)
-    dynamic_samples: int = setting(50_000, ge=1)
-    static_every: int = setting(10, ge=1)
-    static_per_frame: int = setting(5_000, ge=1)
+    object_samples: int = setting(50_000, ge=1)
+    static_samples: int = setting(100_000, ge=1)
+    render_every: int = setting(10, ge=0)
+    render_stride: int = setting(2, ge=1)
     seed: int = setting(0, ge=0)
 
 

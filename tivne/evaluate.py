@@ -1,25 +1,42 @@
-"""Evaluate a finished run against ground truth and merge the result into its metrics.json.
+"""Evaluate a finished (or interrupted) run against its sequence and merge the result into metrics.json.
 
-    python -m tivne.evaluate run_dir=PATH [mesh.resolution=0.02] [mesh.times=[t1,t2]] [frame=first_camera|ate]
+    python -m tivne.evaluate run_dir=PATH [mesh.times=[t1,t2]] [mesh.resolution=0.02] [frame=first_camera|ate]
+                             [settings.window_s=0.5] [settings.threshold_m=0.05] ...
 
-The dataset is rebuilt from the run's own config (run_dir/.hydra/config.yaml); see
-:mod:`tivne.evaluation` for what is measured. The merged metrics are printed as JSON. Errors are one
+The dataset and the render settings are rebuilt from the run's own config (run_dir/.hydra/config.yaml);
+see :mod:`tivne.evaluation` for what is measured. Mesh times outside the run's recorded range are
+refused before anything is written. The new metrics are printed as JSON. Errors are one
 ``error: ...`` line, exit status 2.
 """
 
 from __future__ import annotations
 
 import json
+import sys
 
 import hydra
+from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from data_modules.sequence import SequenceView
 from tivne.cli import mesh_settings, one_line_errors, register_defaults
-from tivne.config import MeshEvalSettings
+from tivne.config import MeshEvalSettings, RenderConfig
 from tivne.evaluation import evaluate_run
 from tivne.slam.outputs import RunDir
 
 register_defaults()
+
+
+def run_sequence(run: RunDir) -> tuple[SequenceView, RenderConfig]:
+    """The sequence as the run streamed it and the run's render settings, from run_dir/.hydra/config.yaml."""
+    if not run.root.is_dir():
+        raise FileNotFoundError(f"{run.root}: run directory not found")
+    if not run.config.is_file():
+        raise FileNotFoundError(f"{run.config}: run config not found")
+    cfg = OmegaConf.load(run.config)
+    data = OmegaConf.to_container(cfg.data, resolve=True) if "data" in cfg else {}
+    render = RenderConfig.from_mapping(OmegaConf.to_container(cfg.render, resolve=True) if "render" in cfg else {})
+    return SequenceView(instantiate(cfg.dataset), **data), render
 
 
 @hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")
@@ -28,16 +45,11 @@ def main(cfg: DictConfig) -> None:
     mesh = mesh_settings(cfg.mesh)
     settings = MeshEvalSettings.from_mapping(OmegaConf.to_container(cfg.settings, resolve=True))
     run = RunDir(cfg.run_dir)
-    metrics = evaluate_run(
-        run.root,
-        mesh_resolution=mesh.resolution,
-        times=list(mesh.times) or None,
-        frame=cfg.frame,
-        settings=settings,
-        prefer_mesh_files=bool(cfg.prefer_mesh_files),
-        mesh_culling=mesh,
-    )
+    view, render = run_sequence(run)
+    metrics = evaluate_run(run.root, view, mesh, settings, render, cfg.frame, bool(cfg.prefer_mesh_files))
     run.merge_metrics(metrics)
+    if metrics.get("ate_partial"):
+        print(f"warning: partial run: ATE over {metrics.get('ate_frames')} of {metrics['sequence_frames']} frames", file=sys.stderr)
     print(json.dumps(metrics, indent=2, sort_keys=True))
 
 

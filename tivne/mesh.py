@@ -12,7 +12,6 @@ per mesh on stdout. Errors are one ``error: ...`` line on stderr and exit status
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 
 import hydra
@@ -20,48 +19,13 @@ import torch
 from omegaconf import DictConfig
 
 from tivne.cli import mesh_settings, one_line_errors, register_defaults
-from tivne.config import ConfigError, MeshConfig
+from tivne.config import MeshConfig
 from tivne.field.networks import time_to_tau
-from tivne.meshing import extract_mesh, save_mesh
+from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
 from tivne.slam.checkpoint import camera_centres, load_checkpoint
 from tivne.slam.outputs import RunDir
 
 register_defaults()
-
-TIME_TOLERANCE_S = 1e-3
-
-
-def select_mesh_times(
-    timestamps: Sequence[float], times: Sequence[float] | None = None, every: int | None = None
-) -> list[float]:
-    """Times to mesh, in seconds on the sequence clock.
-
-    Args:
-        timestamps: (N,) processed frames' timestamps, increasing, N >= 1.
-        times: explicit times; each must lie in [first, last] (within ``TIME_TOLERANCE_S``, clamped).
-        every: every k-th processed frame (k >= 1) instead.
-    Returns:
-        the times; by default the first and last timestamp (one when they coincide).
-    Raises:
-        ConfigError: both ``times`` and ``every``, a bad ``every``, or a time outside the range.
-    """
-    if not len(timestamps):
-        raise ConfigError("the checkpoint records no processed frames")
-    lo, hi = float(timestamps[0]), float(timestamps[-1])
-    if times is not None and every is not None:
-        raise ConfigError("give either mesh.times=[...] or every=k, not both")
-    if every is not None:
-        if int(every) != every or every < 1:
-            raise ConfigError(f"every={every!r}: must be an integer >= 1")
-        return [float(t) for t in timestamps[:: int(every)]]
-    if times is None:
-        return [lo] if hi == lo else [lo, hi]
-    values = [float(t) for t in times]
-    bad = [t for t in values if not lo - TIME_TOLERANCE_S <= t <= hi + TIME_TOLERANCE_S]
-    if bad:
-        raise ConfigError(f"mesh.times={bad}: outside the recorded range [{lo:.3f}, {hi:.3f}] s")
-    return [min(max(t, lo), hi) for t in values]
-
 
 def mesh_run(
     run_dir: str | Path, cfg: MeshConfig = MeshConfig(), every: int | None = None, device: str | None = None

@@ -11,6 +11,7 @@ without seams.
 from __future__ import annotations
 
 import copy
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -19,12 +20,14 @@ import trimesh
 from skimage import measure
 
 from data_modules.io import atomic_write
-from tivne.config import MeshConfig
+from tivne.config import ConfigError, MeshConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.field.voxels import CORNER_OFFSETS
 
 # Lattice points per slab: ~100 bytes of temporaries each (coords, keys, volume, mask), ~200 MB per slab.
 DEFAULT_SLAB_POINTS = 1 << 21
+# Mesh times may lie this far outside the recorded range (seconds); they are clamped to it.
+TIME_TOLERANCE_S = 1e-3
 
 
 def field_device(field: TimeVaryingField) -> torch.device:
@@ -293,3 +296,35 @@ def save_mesh(mesh: trimesh.Trimesh, path: str | Path) -> Path:
     """Write a binary PLY atomically. An empty mesh is written as a valid PLY with no vertices, so a
     4D sequence has no gaps."""
     return atomic_write(path, trimesh.exchange.ply.export_ply(mesh, encoding="binary"))
+
+
+def select_mesh_times(
+    timestamps: Sequence[float], times: Sequence[float] | None = None, every: int | None = None
+) -> list[float]:
+    """Times to mesh, in seconds on the sequence clock.
+
+    Args:
+        timestamps: (N,) processed frames' timestamps, increasing, N >= 1.
+        times: explicit times; each must lie in [first, last] (within ``TIME_TOLERANCE_S``, clamped).
+        every: every k-th processed frame (k >= 1) instead.
+    Returns:
+        the times; by default the first and last timestamp (one when they coincide).
+    Raises:
+        ConfigError: both ``times`` and ``every``, a bad ``every``, or a time outside the range.
+    """
+    if not len(timestamps):
+        raise ConfigError("the run records no processed frames (no timestamps to mesh at)")
+    lo, hi = float(timestamps[0]), float(timestamps[-1])
+    if times is not None and every is not None:
+        raise ConfigError("give either mesh.times=[...] or every=k, not both")
+    if every is not None:
+        if int(every) != every or every < 1:
+            raise ConfigError(f"every={every!r}: must be an integer >= 1")
+        return [float(t) for t in timestamps[:: int(every)]]
+    if times is None:
+        return [lo] if hi == lo else [lo, hi]
+    values = [float(t) for t in times]
+    bad = [t for t in values if not lo - TIME_TOLERANCE_S <= t <= hi + TIME_TOLERANCE_S]
+    if bad:
+        raise ConfigError(f"mesh.times={bad}: outside the recorded range [{lo:.3f}, {hi:.3f}] s")
+    return [min(max(t, lo), hi) for t in values]

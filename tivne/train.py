@@ -37,6 +37,7 @@ from tivne.config import (
 )
 from tivne.evaluation import evaluate_run
 from tivne.masks.base import MaskProvider
+from tivne.meshing import select_mesh_times
 from tivne.render.samplers import PixelSampler
 from tivne.slam.keyframes import KeyframePolicy
 from tivne.slam.outputs import RunDir
@@ -106,6 +107,7 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     dataset = instantiate(cfg.dataset)
     datamodule = SequenceDataModule(dataset, **plain(cfg.data))
+    select_mesh_times(datamodule.view.timestamps, list(settings.mesh.times) or None)  # refuse bad times before the run
     system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks)
     trainer = L.Trainer(
         max_epochs=1,
@@ -125,9 +127,7 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
             trainer.fit(system, datamodule=datamodule)
             metrics = dict(system.last_metrics)
             if settings.output.evaluate:
-                extra = evaluate_run(
-                    Path(run_dir), dataset_view=datamodule.view, mesh_resolution=settings.mesh.resolution, mesh_culling=settings.mesh
-                )
+                extra = evaluate_run(Path(run_dir), datamodule.view, settings.mesh, render=settings.render)
                 metrics = RunDir(run_dir).merge_metrics(extra)
     except RunInterrupted as exc:
         if not system.last_metrics.get("complete"):  # a second signal now is the default action: exit at once

@@ -13,6 +13,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from data_modules.tables import read_tum_trajectory
+from tivne.config import ConfigError
 from tivne.slam.checkpoint import load_checkpoint
 from tivne.train import run
 
@@ -94,3 +95,17 @@ def test_fast_preset_maps_every_other_frame(tmp_path):
     metrics = run(smoke, tmp_path)
     assert metrics["frames"] == 5 and metrics["map_ms_per_iter"] > 0
     assert len(read_tum_trajectory(tmp_path / "trajectory.txt")[0]) == 5
+
+
+def test_final_evaluation_writes_4d_metrics(tmp_path):
+    cfg = compose_cfg("output.evaluate=true", "mesh.times=[0.0,0.1]")
+    metrics = run(cfg, tmp_path)
+    on_disk = json.loads((tmp_path / "metrics.json").read_text())
+    assert on_disk["mesh_eval_times"] == [0.0, 0.1] and on_disk["ate_partial"] is False
+    for key in ("mesh_t0.10_cube_accuracy_m", "mesh_t0.10_cube_chamfer_m", "mesh_t0.10_ghost_fraction", "object_chamfer_max_m"):
+        assert key in on_disk and key in metrics
+    assert on_disk["psnr_frames"] == 1 and math.isfinite(on_disk["psnr_db"]) and on_disk["ssim"] is not None
+    assert (tmp_path / "meshes" / "mesh_t0.100.ply").is_file()
+    with pytest.raises(ConfigError, match="outside the recorded range"):  # before any frame is processed
+        run(compose_cfg("mesh.times=[99]"), tmp_path / "refused")
+    assert not (tmp_path / "refused").exists()

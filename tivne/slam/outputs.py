@@ -99,14 +99,15 @@ class RunDir:
         """Merge ``metrics`` into metrics.json and return the merged content.
 
         Keys not in ``metrics`` are kept, except a stale ``<stem>_reason`` whose metrics ``<stem>_*``
-        are now computed. Values go through :func:`jsonable` (NaN -> null).
+        (or ``<stem>`` itself: ``ssim_reason``) are now computed. Values go through :func:`jsonable`
+        (NaN -> null).
         """
         current = self.read_metrics()
         metrics = {k: jsonable(v) for k, v in metrics.items()}
         computed = [k for k, v in metrics.items() if v is not None and not k.endswith("_reason")]
         for key in [k for k in current if k.endswith("_reason") and k not in metrics]:
             stem = key[: -len("reason")]
-            if any(k.startswith(stem) for k in computed):
+            if any(k.startswith(stem) or k == stem[:-1] for k in computed):
                 del current[key]
         current.update(metrics)
         atomic_write(self.metrics, json.dumps(current, indent=2, sort_keys=True) + "\n")

@@ -27,7 +27,7 @@ from tivne.config import (
 from tivne.field.networks import TimeVaryingField, time_to_tau
 from tivne.geometry import backproject
 from tivne.masks.base import MaskContext, MaskProvider, NoMasks
-from tivne.meshing import extract_mesh, save_mesh
+from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
 from tivne.render.rays import View
 from tivne.render.renderer import render_image
 from tivne.render.samplers import PixelSampler
@@ -284,7 +284,7 @@ class TivNeSLAM(L.LightningModule):
 
     def _write_meshes(self) -> dict[str, Any]:
         stamps = self.trajectory.timestamps()
-        times = list(self.mesh_cfg.times) or [stamps[0], stamps[-1]]
+        times = select_mesh_times(stamps, list(self.mesh_cfg.times) or None)
         centres = self.poses()[:, :3, 3].numpy()
         result: dict[str, Any] = {}
         for ts in times:

@@ -28,6 +28,9 @@ def test_merge_metrics_drops_a_stale_reason_once_its_metric_is_computed(tmp_path
     run.merge_metrics({"ate_rmse_m": None, "ate_reason": "no GT"})
     assert run.merge_metrics({"ate_rmse_m": 0.01})["ate_rmse_m"] == 0.01
     assert "ate_reason" not in run.read_metrics()
+    run.merge_metrics({"ssim": None, "ssim_reason": "no checkpoint", "mse": None, "mse_reason": "no checkpoint"})
+    merged = run.merge_metrics({"ssim": 0.9})
+    assert "ssim_reason" not in merged and merged["mse_reason"] == "no checkpoint"
 
 
 def test_paths_and_trajectory_round_trip(tmp_path):
