@@ -27,7 +27,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from data_modules.tum import TUMSequence  # noqa: E402
-from tivne.geometry import invert_pose, orthonormalize_pose  # noqa: E402
+from tivne.geometry import invert_pose, orthonormalize_pose, se3_exp, se3_log  # noqa: E402
 from tivne.metrics import absolute_trajectory_error  # noqa: E402
 from tivne.slam.odometry import OdometryConfig, frame_pyramid, track_pyramids  # noqa: E402
 
@@ -51,6 +51,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--keyframe-overlap", type=float, default=0.7, help="new keyframe below this overlap")
     p.add_argument("--keyframe-inlier", type=float, default=0.5, help="new keyframe below this inlier ratio")
     p.add_argument("--motion-prior", choices=("velocity", "none"), default="velocity")
+    p.add_argument("--sync-depth", action="store_true",
+                   help="model the depth/colour timestamp offset (depth moved by the velocity over the offset)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--device", default="cpu")
     p.add_argument("--json", default=None, help="also write the figures to this JSON file")
@@ -62,6 +64,12 @@ def predict(poses: list[torch.Tensor], use_velocity: bool) -> torch.Tensor:
     if use_velocity and len(poses) >= 2:
         return orthonormalize_pose(poses[-1] @ invert_pose(poses[-2]) @ poses[-1])
     return poses[-1].clone()
+
+
+def rgb_depth_motion(c2w_a: torch.Tensor, c2w_b: torch.Tensor, dt_ab: float, offset: float) -> torch.Tensor:
+    """T_rgb_depth (4, 4) of a frame whose depth is ``offset`` s after its colour, at the body velocity a -> b."""
+    xi = se3_log(invert_pose(c2w_a) @ c2w_b) * (offset / dt_ab)
+    return se3_exp(xi)
 
 
 def run(args: argparse.Namespace) -> dict[str, float]:
@@ -81,6 +89,8 @@ def run(args: argparse.Namespace) -> dict[str, float]:
     gt = [first.gt_pose]
     prev_pyr = kf_pyr = frame_pyramid(first.rgb.to(args.device), first.depth.to(args.device), K, cfg)
     kf_pose = c2w[0]
+    times, offsets = [seq.timestamps[ids[0]]], seq.depth_timestamps - seq.timestamps
+    prev_cd = kf_cd = cur_cd = None  # T_rgb_depth of the previous frame, the keyframe, the current frame
     not_ok = keyframes = 0
     track_s = cpu_s = 0.0
     for i in ids[1:]:
@@ -88,21 +98,26 @@ def run(args: argparse.Namespace) -> dict[str, float]:
         t0, c0 = time.perf_counter(), time.process_time()
         pyr = frame_pyramid(frame.rgb.to(args.device), frame.depth.to(args.device), K, cfg)
         guess = predict(c2w, args.motion_prior == "velocity")
-        ref_pyr, ref_pose = (kf_pyr, kf_pose) if args.mode == "keyframe" else (prev_pyr, c2w[-1])
-        res = track_pyramids(ref_pyr, pyr, invert_pose(ref_pose) @ guess, cfg)
+        if args.sync_depth and len(c2w) >= 2:
+            cur_cd = rgb_depth_motion(c2w[-2], c2w[-1], times[-1] - times[-2], float(offsets[i]))
+        ref_pyr, ref_pose, ref_cd = (kf_pyr, kf_pose, kf_cd) if args.mode == "keyframe" else (prev_pyr, c2w[-1], prev_cd)
+        res = track_pyramids(ref_pyr, pyr, invert_pose(ref_pose) @ guess, cfg, ref_cd, cur_cd)
         fell_back = args.mode == "keyframe" and not res.ok and ref_pyr is not prev_pyr
         if fell_back:  # the keyframe is lost: track against the previous frame instead
-            ref_pyr, ref_pose = prev_pyr, c2w[-1]
-            res = track_pyramids(ref_pyr, pyr, invert_pose(ref_pose) @ guess, cfg)
+            ref_pyr, ref_pose, ref_cd = prev_pyr, c2w[-1], prev_cd
+            res = track_pyramids(ref_pyr, pyr, invert_pose(ref_pose) @ guess, cfg, ref_cd, cur_cd)
         track_s, cpu_s = track_s + time.perf_counter() - t0, cpu_s + time.process_time() - c0
         not_ok += not res.ok
         pose = orthonormalize_pose(ref_pose @ res.T_ref_cur.cpu())
+        if args.sync_depth:  # with this frame's own motion known, re-estimate its offset motion for later use
+            cur_cd = rgb_depth_motion(c2w[-1], pose, float(seq.timestamps[i]) - times[-1], float(offsets[i]))
         c2w.append(pose)
+        times.append(float(seq.timestamps[i]))
         gt.append(frame.gt_pose)
         if args.mode == "keyframe" and (fell_back or res.overlap < args.keyframe_overlap or res.inlier_ratio < args.keyframe_inlier):
-            kf_pyr, kf_pose = pyr, pose
+            kf_pyr, kf_pose, kf_cd = pyr, pose, cur_cd
             keyframes += 1
-        prev_pyr = pyr
+        prev_pyr, prev_cd = pyr, cur_cd
     have = [k for k, g in enumerate(gt) if g is not None]
     ate = absolute_trajectory_error(torch.stack([c2w[k] for k in have]).numpy(), torch.stack([gt[k] for k in have]).double().numpy())
     return {

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from tivne.geometry import project, se3_exp
+from tivne.geometry import invert_pose, project, se3_exp
 from tivne.slam.pyramid import KINECT_SIGMA, PyramidLevel, build_pyramid, kinect_depth_sigma
 
 MAD_TO_SIGMA = 1.4826  # MAD of a Gaussian times this is its σ
@@ -40,7 +40,8 @@ class OdometryConfig:
     level. photometric / geometric: which residual terms enter. robust: "huber" (k 1.345) or
     "cauchy" (k 2.3849) kernel on the normalised residuals. depth_sigma: (a, b, z0) of σ(z).
     intensity_sigma_min: floor of the photometric scale (1/255, one 8-bit step). brightness_offset:
-    subtract the median photometric residual (a global exposure change). outlier_sigmas: a pair whose
+    subtract the median photometric residual (a global exposure change). photometric_depth_noise: add the
+    current depth's noise, seen through the image gradient, to each photometric σ. outlier_sigmas: a pair whose
     depth difference exceeds this many robust σ is rejected (occlusion, another surface).
     max_normal_angle_deg: reject point-to-plane pairs whose normals disagree more. min_depth, max_depth:
     usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than
@@ -60,13 +61,14 @@ class OdometryConfig:
     depth_sigma: tuple[float, float, float] = KINECT_SIGMA
     intensity_sigma_min: float = 1.0 / 255.0
     brightness_offset: bool = True
+    photometric_depth_noise: bool = True
     outlier_sigmas: float = 5.0
     max_normal_angle_deg: float = 30.0
     min_depth: float = 0.2
     max_depth: float = 6.0
     tol_pixels: float = 0.02
     damping: float = 1e-4
-    finest_stride: int = 1
+    finest_stride: int = 2
     inlier_sigmas: float = 3.0
     min_correspondences: int = 64
     min_overlap: float = 0.3
@@ -137,20 +139,42 @@ def robust_scale(r: torch.Tensor, floor: float, mask: torch.Tensor | None = None
 
 @dataclass(frozen=True)
 class _Source:
-    """The current frame's pixels at one level: points (3, N), intensity (N,), normals (3, N)."""
+    """The current frame's pixels at one level, in its colour camera's frame at the colour timestamp:
+    points (3, N), intensity (N,), normals (3, N), has_colour (N,) bool (the point sees the colour image)."""
 
     points: torch.Tensor
     intensity: torch.Tensor
     normals: torch.Tensor
+    has_colour: torch.Tensor
 
 
-def _source(level: PyramidLevel, stride: int) -> _Source:
+def _sample(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """Bilinear samples (C, N) of image (1, C, H, W) at pixel coordinates uv (2, N) (zeros outside)."""
+    h, w = image.shape[-2:]
+    grid = torch.stack([uv[0] * (2.0 / (w - 1)) - 1, uv[1] * (2.0 / (h - 1)) - 1], -1)
+    return F.grid_sample(image, grid[None, None], mode="bilinear", align_corners=True)[0, :, 0]
+
+
+def _in_image(uv: torch.Tensor, z: torch.Tensor, shape: tuple[int, ...], min_depth: float) -> torch.Tensor:
+    """(N,) bool: in front of the camera and at least one pixel inside the border (gradients there are padding)."""
+    h, w = shape
+    return (z > min_depth) & (uv[0] >= 1) & (uv[0] <= w - 2) & (uv[1] >= 1) & (uv[1] <= h - 2)
+
+
+def _source(level: PyramidLevel, stride: int, T_rgb_depth: torch.Tensor | None, min_depth: float) -> _Source:
     sel = level.usable
     if stride > 1:
         grid = torch.zeros_like(sel)
         grid[::stride, ::stride] = True
         sel = sel & grid
-    return _Source(level.geometry[1:4, sel], level.intensity[sel], level.geometry[4:7, sel])
+    points, normals, intensity = level.geometry[1:4, sel], level.geometry[4:7, sel], level.intensity[sel]
+    if T_rgb_depth is None:
+        return _Source(points, intensity, normals, torch.ones_like(intensity, dtype=torch.bool))
+    # Depth taken at another time than colour: move the points to the colour time, read their colour there.
+    R, t = T_rgb_depth[:3, :3].to(points), T_rgb_depth[:3, 3].to(points)
+    points, normals = R @ points + t[:, None], R @ normals
+    uv, z = project(points.T, level.K)
+    return _Source(points, _sample(level.warp_image[:, :1], uv.T)[0], normals, _in_image(uv.T, z, sel.shape, min_depth))
 
 
 @dataclass(frozen=True)
@@ -184,36 +208,46 @@ def _rows(p: torch.Tensor, g: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
     return torch.stack([g[0], g[1], g[2], y * g[2] - z * g[1], z * g[0] - x * g[2], x * g[1] - y * g[0], r])
 
 
-def _photometric(ref: PyramidLevel, src: _Source, p: torch.Tensor, uv: torch.Tensor, valid: torch.Tensor, cfg: OdometryConfig):
+def _photometric(ref: PyramidLevel, src: _Source, p: torch.Tensor, uv: torch.Tensor, dp_dz: torch.Tensor, valid: torch.Tensor, cfg: OdometryConfig):
     """Rows (7, N) of :func:`_rows`, normalised weights (N,) (0 where not valid) and IRLS weights (N,).
 
-    The gradient of I_ref(π(p)) w.r.t. p is ∇I · ∂π/∂p = (I_u f_x / z, I_v f_y / z, −(I_u f_x x + I_v f_y y) / z²).
+    The gradient of I_ref(π(p)) w.r.t. p is g = ∇I · ∂π/∂p = (I_u f_x / z, I_v f_y / z, −(I_u f_x x + I_v f_y y) / z²).
+    With ``photometric_depth_noise`` each residual's σ² = s² + (g · ∂p/∂z_cur)² σ(z_cur)²: the current
+    depth's noise moves the warped pixel, which matters where the reference image has strong gradients.
     """
-    h, w = ref.intensity.shape
-    grid = torch.stack([uv[0] * (2.0 / (w - 1)) - 1, uv[1] * (2.0 / (h - 1)) - 1], -1)
-    s = F.grid_sample(ref.warp_image, grid[None, None], mode="bilinear", align_corners=True)[0, :, 0]  # (3, N)
+    s = _sample(ref.warp_image, uv)  # (3, N): I, ∂I/∂u, ∂I/∂v
+    valid = valid & src.has_colour
     r = s[0] - src.intensity
     if cfg.brightness_offset:
         r = r - _subsample(r, valid).median() if bool(valid.any()) else r
     x, y, z = p
     gu, gv = s[1] * (ref.K[0, 0] / z), s[2] * (ref.K[1, 1] / z)
-    rows = _rows(p, torch.stack([gu, gv, -(gu * x + gv * y) / z]), r)
+    g = torch.stack([gu, gv, -(gu * x + gv * y) / z])
     scale = robust_scale(r, cfg.intensity_sigma_min, valid)
+    if cfg.photometric_depth_noise:
+        scale = torch.hypot(scale, (g * dp_dz).sum(0) * kinect_depth_sigma(src.points[2], cfg.depth_sigma))
+    rows = _rows(p, g, r)
     wts = _kernel(r / scale, cfg) * valid
     return rows, wts / scale**2, wts
 
 
-def _geometric(src: _Source, p: torch.Tensor, geo: torch.Tensor, valid: torch.Tensor, sigma: torch.Tensor, R: torch.Tensor, cfg: OdometryConfig):
-    """Point-to-plane rows and weights as :func:`_photometric`; geo (7, N) is the reference pixel's geometry.
+def _geometric(
+    n_cur: torch.Tensor, p: torch.Tensor, pd: torch.Tensor, geo: torch.Tensor, valid: torch.Tensor, sigma: torch.Tensor,
+    RA: torch.Tensor | None, cfg: OdometryConfig,
+):
+    """Point-to-plane rows and weights as :func:`_photometric`.
 
-    r = n · (p − v_ref), gradient n; pairs with undefined or disagreeing normals get weight 0.
+    p (3, N): points in the reference colour frame (the one T_ref_cur maps to), pd = RA p + tA the same in
+    the reference depth frame, n_cur (3, N) the current normals rotated into it, geo (7, N) the reference
+    pixel's geometry. r = n · (pd − v_ref), gradient RAᵀ n w.r.t. p; pairs with undefined or disagreeing
+    normals get weight 0.
     """
     n = geo[4:7]
-    agree = valid & ((n * (R @ src.normals)).sum(0) >= math.cos(math.radians(cfg.max_normal_angle_deg)))
-    r = (n * (p - geo[1:4])).sum(0)
+    agree = valid & ((n * n_cur).sum(0) >= math.cos(math.radians(cfg.max_normal_angle_deg)))
+    r = (n * (pd - geo[1:4])).sum(0)
     scale = robust_scale(r / sigma, 1.0, agree) * sigma  # ≥ σ: never trusted beyond the sensor model
     wts = _kernel(r / scale, cfg) * agree
-    return _rows(p, n, r), wts / scale**2, wts
+    return _rows(p, n if RA is None else RA.T @ n, r), wts / scale**2, wts
 
 
 def normal_equations(rows: torch.Tensor, w: torch.Tensor, block: int = 4096) -> tuple[torch.Tensor, torch.Tensor]:
@@ -231,32 +265,43 @@ def normal_equations(rows: torch.Tensor, w: torch.Tensor, block: int = 4096) -> 
     return M[:6, :6], M[:6, 6]
 
 
-def _linearise(ref: PyramidLevel, src: _Source, T: torch.Tensor, cfg: OdometryConfig) -> _Linearisation:
+def _linearise(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig) -> _Linearisation:
     """Warp the current points by T (4, 4) into the reference and build the robust normal equations.
 
+    A (4, 4) or None: reference colour frame -> reference depth frame (inverse of its T_rgb_depth).
     Fixed-size (3, N) arrays with zero weights rather than boolean compaction: on CPU a gather is cheap,
     a compaction of every array is not.
     """
     R, t = T[:3, :3].to(src.points.dtype), T[:3, 3].to(src.points.dtype)
     p = R @ src.points + t[:, None]
     uv, z = project(p.T, ref.K)
-    uv = uv.T
+    uv, RA, pd, uvd, zd = uv.T, None, p, uv.T, z
+    if A is not None:
+        RA = A[:3, :3].to(p.dtype)
+        pd = RA @ p + A[:3, 3].to(p.dtype)[:, None]
+        uvd, zd = project(pd.T, ref.K)
+        uvd = uvd.T
     h, w = ref.intensity.shape
-    # One pixel of margin: the gradients there come from replicate padding.
-    inside = (z > cfg.min_depth) & (uv[0] >= 1) & (uv[0] <= w - 2) & (uv[1] >= 1) & (uv[1] <= h - 2)
-    idx = uv[1].round().long().clamp(0, h - 1) * w + uv[0].round().long().clamp(0, w - 1)
+    inside = _in_image(uv, z, (h, w), cfg.min_depth)
+    inside = inside if A is None else inside & _in_image(uvd, zd, (h, w), cfg.min_depth)
+    idx = uvd[1].round().long().clamp(0, h - 1) * w + uvd[0].round().long().clamp(0, w - 1)
     geo = ref.geometry.view(7, -1).index_select(1, idx)  # nearest reference pixel (projective association)
     usable = inside & (geo[0] > 0)
-    sigma = torch.hypot(kinect_depth_sigma(z, cfg.depth_sigma), kinect_depth_sigma(geo[0], cfg.depth_sigma))
-    dz = ((z - geo[0]) / sigma).abs()
+    sigma = torch.hypot(kinect_depth_sigma(zd, cfg.depth_sigma), kinect_depth_sigma(geo[0], cfg.depth_sigma))
+    dz = ((zd - geo[0]) / sigma).abs()
     valid = usable & (dz <= cfg.outlier_sigmas * robust_scale(dz, 1.0, usable))
     H, g = torch.zeros(6, 6, dtype=torch.float64, device=p.device), torch.zeros(6, dtype=torch.float64, device=p.device)
     rms = [math.nan, math.nan]
-    for k, use in enumerate((cfg.photometric, cfg.geometric)):
-        if use:
-            rows, w_norm, w_irls = _photometric(ref, src, p, uv, valid, cfg) if k == 0 else _geometric(src, p, geo, valid, sigma, R, cfg)
-            Hk, gk = normal_equations(rows, w_norm)
-            H, g, rms[k] = H + Hk, g + gk, _weighted_rms(rows[6], w_irls)
+    if cfg.photometric:
+        dp_dz = (p - t[:, None]) / src.points[2]  # the current point moves along its ray with its depth
+        rows, w_norm, rms_w = _photometric(ref, src, p, uv, dp_dz, valid, cfg)
+        H, g = normal_equations(rows, w_norm)
+        rms[0] = _weighted_rms(rows[6], rms_w)
+    if cfg.geometric:
+        n_cur = (R if RA is None else RA @ R) @ src.normals
+        rows, w_norm, rms_w = _geometric(n_cur, p, pd, geo, valid, sigma, RA, cfg)
+        Hk, gk = normal_equations(rows, w_norm)
+        H, g, rms[1] = H + Hk, g + gk, _weighted_rms(rows[6], rms_w)
     num_inliers = int((usable & (dz <= cfg.inlier_sigmas)).sum())
     return _Linearisation(H, g, int(valid.sum()), int(usable.sum()), num_inliers, rms[0], rms[1])
 
@@ -268,12 +313,12 @@ def _solve(H: torch.Tensor, g: torch.Tensor, damping: float) -> torch.Tensor:
     return -torch.linalg.solve(A, g)
 
 
-def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, cfg: OdometryConfig):
+def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig):
     """Gauss–Newton iterations at one level -> (T, iterations, converged, last linearisation)."""
     f = float(ref.K[0, 0])
     z_mid = float(src.points[2].median()) if src.points.shape[1] else 1.0
     for it in range(cfg.max_iterations):
-        lin = _linearise(ref, src, T, cfg)
+        lin = _linearise(ref, src, T, A, cfg)
         if lin.num_valid < cfg.min_correspondences:
             return T, it, False, lin
         delta = _solve(lin.H, lin.g, cfg.damping)
@@ -284,23 +329,33 @@ def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, cfg: Odometry
 
 
 def track_pyramids(
-    ref: list[PyramidLevel], cur: list[PyramidLevel], T_init: torch.Tensor | None = None, config: OdometryConfig = OdometryConfig()
+    ref: list[PyramidLevel],
+    cur: list[PyramidLevel],
+    T_init: torch.Tensor | None = None,
+    config: OdometryConfig = OdometryConfig(),
+    ref_rgb_depth: torch.Tensor | None = None,
+    cur_rgb_depth: torch.Tensor | None = None,
 ) -> OdometryResult:
-    """Estimate T_ref_cur (``c2w_cur = c2w_ref @ T_ref_cur``) coarse to fine.
+    """Estimate T_ref_cur (``c2w_cur = c2w_ref @ T_ref_cur``, colour camera frames) coarse to fine.
 
     Args:
         ref, cur: pyramids from :func:`frame_pyramid` (same config, finest first).
         T_init: (4, 4) initial T_ref_cur, e.g. a constant-velocity prediction; identity if None.
         config: :class:`OdometryConfig`.
+        ref_rgb_depth, cur_rgb_depth: (4, 4) T_rgb_depth of each frame, mapping its depth camera frame
+            (at the depth timestamp) into its colour camera frame (at the colour timestamp), for sensors
+            whose depth and colour are not simultaneous (e.g. exp(ξ·Δt) from a velocity); None = simultaneous.
     Returns:
         :class:`OdometryResult`; on failure (no overlap, no depth) ``ok`` is False, never a silent identity.
     """
     device = ref[0].depth.device
     T = torch.eye(4, dtype=torch.float64, device=device) if T_init is None else T_init.to(device, torch.float64)
+    A = None if ref_rgb_depth is None else invert_pose(ref_rgb_depth.to(device, torch.float64))
+    cur_rgb_depth = None if cur_rgb_depth is None else cur_rgb_depth.to(device, torch.float64)
     iterations, converged, lin, n_src = [], False, None, 0
     for level in reversed(range(min(len(ref), len(cur), config.levels))):
-        src = _source(cur[level], config.finest_stride if level == 0 else 1)
-        T, its, converged, lin = _track_level(ref[level], src, T, config)
+        src = _source(cur[level], config.finest_stride if level == 0 else 1, cur_rgb_depth, config.min_depth)
+        T, its, converged, lin = _track_level(ref[level], src, T, A, config)
         iterations.append(its)
         n_src = src.points.shape[1]
     return _result(T, converged, lin, n_src, tuple(iterations), config)

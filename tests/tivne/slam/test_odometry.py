@@ -78,6 +78,23 @@ def test_dynamic_mask_excludes_the_moving_cube(room):
     assert not blind.ok and blind.num_valid == 0
 
 
+def test_depth_colour_time_offset_is_compensated(room):
+    """Depth taken at another pose than colour (a 20 ms offset at 60 °/s), in both frames."""
+    from tivne.slam.odometry import OdometryConfig as Cfg, frame_pyramid, track_pyramids
+
+    P, dT = room.camera_pose(0), motion(9, 0.02, 3.0)
+    ref_cd, cur_cd = motion(10, 0.004, 1.2), motion(11, 0.004, 1.2)  # T_rgb_depth of each frame
+    K, cfg = room.intrinsics.K(), Cfg()
+    ref_rgb, cur_rgb = view(room, P)[0], view(room, P @ dT)[0]
+    ref_depth, cur_depth = view(room, P @ ref_cd)[1], view(room, P @ dT @ cur_cd)[1]
+    ref, cur = frame_pyramid(ref_rgb, ref_depth, K, cfg), frame_pyramid(cur_rgb, cur_depth, K, cfg)
+    res = track_pyramids(ref, cur, None, cfg, ref_rgb_depth=ref_cd, cur_rgb_depth=cur_cd)
+    t_err, r_err = pose_error(res.T_ref_cur, dT)
+    assert t_err < 1.0 and r_err < 0.05 and res.ok, (t_err, r_err)
+    naive = track_pyramids(ref, cur, None, cfg)
+    assert pose_error(naive.T_ref_cur, dT)[1] > 0.1  # ignoring the offset costs ~ the offset's rotation
+
+
 def test_no_depth_reports_failure(room):
     P = room.camera_pose(0)
     ref, cur = view(room, P), view(room, P @ motion(7, 0.01, 1.0))
