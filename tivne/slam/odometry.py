@@ -41,7 +41,8 @@ class OdometryConfig:
     "cauchy" (k 2.3849) kernel on the normalised residuals. depth_sigma: (a, b, z0) of σ(z).
     intensity_sigma_min: floor of the photometric scale (1/255, one 8-bit step). brightness_offset:
     subtract the median photometric residual (a global exposure change). photometric_depth_noise: add the
-    current depth's noise, seen through the image gradient, to each photometric σ. outlier_sigmas: a pair whose
+    current depth's noise, seen through the image gradient, to each photometric σ. photometric_weight: an
+    extra factor on the photometric information (1 = the noise scales alone decide). outlier_sigmas: a pair whose
     depth difference exceeds this many robust σ is rejected (occlusion, another surface).
     max_normal_angle_deg: reject point-to-plane pairs whose normals disagree more. min_depth, max_depth:
     usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than
@@ -62,6 +63,7 @@ class OdometryConfig:
     intensity_sigma_min: float = 1.0 / 255.0
     brightness_offset: bool = True
     photometric_depth_noise: bool = True
+    photometric_weight: float = 1.0
     outlier_sigmas: float = 5.0
     max_normal_angle_deg: float = 30.0
     min_depth: float = 0.2
@@ -295,7 +297,7 @@ def _linearise(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor
     if cfg.photometric:
         dp_dz = (p - t[:, None]) / src.points[2]  # the current point moves along its ray with its depth
         rows, w_norm, rms_w = _photometric(ref, src, p, uv, dp_dz, valid, cfg)
-        H, g = normal_equations(rows, w_norm)
+        H, g = normal_equations(rows, w_norm * cfg.photometric_weight)
         rms[0] = _weighted_rms(rows[6], rms_w)
     if cfg.geometric:
         n_cur = (R if RA is None else RA @ R) @ src.normals

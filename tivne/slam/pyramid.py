@@ -13,8 +13,6 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from tivne.geometry import backproject_depth
-
 KINECT_SIGMA = (0.0012, 0.0019, 0.4)  # σ(z) = a + b (z − z0)², metres (Nguyen et al. 2012)
 Coeffs = tuple[float, float, float]
 
@@ -57,15 +55,16 @@ def kinect_depth_sigma(z: torch.Tensor, coeffs: Coeffs = KINECT_SIGMA) -> torch.
     return a + b * (z - z0) ** 2
 
 
-def _blocks(x: torch.Tensor) -> torch.Tensor:
-    """(H, W) -> (H//2, W//2, 4), the four pixels of each 2x2 block (odd last row/column dropped)."""
-    h, w = x.shape[0] // 2, x.shape[1] // 2
-    return x[: 2 * h, : 2 * w].reshape(h, 2, w, 2).permute(0, 2, 1, 3).reshape(h, w, 4)
+def _blocks(x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """(H, W) -> four (H//2, W//2) strided views, the pixels of each 2x2 block (odd last row/column dropped)."""
+    h, w = x.shape[0] // 2 * 2, x.shape[1] // 2 * 2
+    return x[0:h:2, 0:w:2], x[0:h:2, 1:w:2], x[1:h:2, 0:w:2], x[1:h:2, 1:w:2]
 
 
 def downsample_intensity(img: torch.Tensor) -> torch.Tensor:
     """(H, W) -> (H//2, W//2), the mean of each 2x2 block (new pixel u sits at 2u + 0.5, see downsample_K)."""
-    return _blocks(img).mean(-1)
+    a, b, c, d = _blocks(img)
+    return (a + b + c + d) * 0.25
 
 
 def downsample_depth(depth: torch.Tensor, coeffs: Coeffs = KINECT_SIGMA, n_sigma: float = 3.0) -> torch.Tensor:
@@ -74,17 +73,20 @@ def downsample_depth(depth: torch.Tensor, coeffs: Coeffs = KINECT_SIGMA, n_sigma
     Invalid (0) depths never enter the mean, and a block straddling a depth edge keeps the front surface
     instead of a depth between two surfaces that belongs to neither; 0 where the block has no depth.
     """
-    b = _blocks(depth)
-    valid = b > 0
-    zmin = torch.where(valid, b, torch.full_like(b, math.inf)).min(-1).values
-    keep = valid & (b - zmin[..., None] <= n_sigma * kinect_depth_sigma(zmin, coeffs)[..., None])
-    count = keep.sum(-1)
-    return torch.where(count > 0, (b * keep).sum(-1) / count.clamp_min(1), torch.zeros_like(zmin))
+    blocks = _blocks(depth)
+    zmin = torch.stack([torch.where(b > 0, b, torch.full_like(b, math.inf)) for b in blocks]).amin(0)
+    limit = zmin + n_sigma * kinect_depth_sigma(zmin, coeffs)
+    total, count = torch.zeros_like(zmin), torch.zeros_like(zmin)
+    for b in blocks:
+        keep = (b > 0) & (b <= limit)
+        total, count = total + b * keep, count + keep
+    return torch.where(count > 0, total / count.clamp_min(1), torch.zeros_like(zmin))
 
 
 def downsample_mask(mask: torch.Tensor) -> torch.Tensor:
     """(H, W) bool -> (H//2, W//2): dynamic where any pixel of the 2x2 block is."""
-    return _blocks(mask).any(-1)
+    a, b, c, d = _blocks(mask)
+    return a | b | c | d
 
 
 def downsample_K(K: torch.Tensor) -> torch.Tensor:
@@ -136,7 +138,10 @@ def vertex_normals(vertices: torch.Tensor, valid: torch.Tensor, f: float, coeffs
 def _level(K: torch.Tensor, intensity: torch.Tensor, depth: torch.Tensor, dynamic: torch.Tensor, depth_range: tuple[float, float], coeffs: Coeffs) -> PyramidLevel:
     usable = (depth >= depth_range[0]) & (depth <= depth_range[1]) & ~dynamic
     depth = torch.where(usable, depth, torch.zeros_like(depth))
-    vertices = backproject_depth(depth, K).permute(2, 0, 1)
+    h, w = depth.shape
+    u = torch.arange(w, dtype=depth.dtype, device=depth.device)
+    v = torch.arange(h, dtype=depth.dtype, device=depth.device)[:, None]
+    vertices = torch.stack([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth, depth])  # (3, H, W)
     normals = vertex_normals(vertices, usable, float(K[0, 0]), coeffs)
     warp_image = torch.cat([intensity[None], image_gradients(intensity)])[None]
     return PyramidLevel(K, intensity, warp_image, torch.cat([depth[None], vertices, normals]), usable)
