@@ -49,6 +49,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--outlier-sigmas", type=float, default=OdometryConfig.outlier_sigmas)
     p.add_argument("--no-brightness-offset", action="store_true")
     p.add_argument("--photometric-weight", type=float, default=OdometryConfig.photometric_weight)
+    p.add_argument("--geometric-scale", choices=("data", "model"), default=OdometryConfig.geometric_scale)
     p.add_argument("--tol-pixels", type=float, default=OdometryConfig.tol_pixels, help="update tolerance in pixels")
     p.add_argument("--keyframe-overlap", type=float, default=0.7, help="new keyframe below this overlap")
     p.add_argument("--keyframe-inlier", type=float, default=0.5, help="new keyframe below this inlier ratio")
@@ -83,7 +84,7 @@ def run(args: argparse.Namespace) -> dict[str, float]:
         levels=args.levels, max_iterations=args.iterations, photometric=not args.no_photometric,
         geometric=not args.no_geometric, robust=args.robust, finest_stride=args.finest_stride,
         outlier_sigmas=args.outlier_sigmas, brightness_offset=not args.no_brightness_offset,
-        tol_pixels=args.tol_pixels, photometric_weight=args.photometric_weight,
+        tol_pixels=args.tol_pixels, photometric_weight=args.photometric_weight, geometric_scale=args.geometric_scale,
     )
     K = seq.intrinsics.K(dtype=torch.float32, device=args.device)
     first = seq[ids[0]]

@@ -42,7 +42,9 @@ class OdometryConfig:
     intensity_sigma_min: floor of the photometric scale (1/255, one 8-bit step). brightness_offset:
     subtract the median photometric residual (a global exposure change). photometric_depth_noise: add the
     current depth's noise, seen through the image gradient, to each photometric σ. photometric_weight: an
-    extra factor on the photometric information (1 = the noise scales alone decide). outlier_sigmas: a pair whose
+    extra factor on the photometric information (1 = the noise scales alone decide). geometric_scale:
+    "data" (σ(z) shapes the per-pixel point-to-plane weights, the MAD of the residuals sets the overall
+    scale, at least depth_quantum metres, as the photometric term) or "model" (scale ≥ σ(z)). outlier_sigmas: a pair whose
     depth difference exceeds this many robust σ is rejected (occlusion, another surface).
     max_normal_angle_deg: reject point-to-plane pairs whose normals disagree more. min_depth, max_depth:
     usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than
@@ -64,6 +66,8 @@ class OdometryConfig:
     brightness_offset: bool = True
     photometric_depth_noise: bool = True
     photometric_weight: float = 1.0
+    geometric_scale: str = "data"
+    depth_quantum: float = 0.0002
     outlier_sigmas: float = 5.0
     max_normal_angle_deg: float = 30.0
     min_depth: float = 0.2
@@ -80,6 +84,8 @@ class OdometryConfig:
     def __post_init__(self) -> None:
         if not (self.photometric or self.geometric):
             raise ValueError("odometry: enable at least one of photometric / geometric")
+        if self.geometric_scale not in ("data", "model"):
+            raise ValueError(f"odometry.geometric_scale must be 'data' or 'model', got {self.geometric_scale!r}")
         if self.robust not in ("huber", "cauchy"):
             raise ValueError(f"odometry.robust must be 'huber' or 'cauchy', got {self.robust!r}")
         if self.levels < 1 or self.max_iterations < 1 or self.finest_stride < 1:
@@ -247,7 +253,10 @@ def _geometric(
     n = geo[4:7]
     agree = valid & ((n * n_cur).sum(0) >= math.cos(math.radians(cfg.max_normal_angle_deg)))
     r = (n * (pd - geo[1:4])).sum(0)
-    scale = robust_scale(r / sigma, 1.0, agree) * sigma  # ≥ σ: never trusted beyond the sensor model
+    if cfg.geometric_scale == "data":  # σ(z) shapes the per-pixel weights, the residuals set the overall scale
+        scale = (robust_scale(r / sigma, 0.0, agree) * sigma).clamp_min(cfg.depth_quantum)
+    else:  # ≥ σ: never trusted beyond the sensor model
+        scale = robust_scale(r / sigma, 1.0, agree) * sigma
     wts = _kernel(r / scale, cfg) * agree
     return _rows(p, n if RA is None else RA.T @ n, r), wts / scale**2, wts
 

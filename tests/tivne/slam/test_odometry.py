@@ -174,6 +174,8 @@ def test_config_rejects_nonsense():
         OdometryConfig(photometric=False, geometric=False)
     with pytest.raises(ValueError):
         OdometryConfig(robust="l2")
+    with pytest.raises(ValueError):
+        OdometryConfig(geometric_scale="guess")
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
