@@ -8,8 +8,8 @@ pixels that have depth into the reference image (projective data association, p'
 * point-to-plane residuals r_G = n_ref · (p' − v_ref) at the nearest reference pixel,
 
 each divided by its own noise scale, so their relative weight is set by the data, not by a constant:
-r_I by s_I = 1.4826·MAD(r_I) (floored at the 8-bit quantisation step), r_G by σ_pair(z)·s_G where
-σ(z) is the Kinect v1 axial noise model and s_G ≥ 1 is the MAD of the normalised residuals. IRLS
+r_I by s_I = 1.4826·MAD(r_I) (at least one 8-bit step), r_G by σ_pair(z)·s_G where σ(z) is the
+Kinect v1 axial noise model (it shapes the per-pixel weights) and s_G the MAD of r_G/σ_pair. IRLS
 weights (Huber or Cauchy) act on the normalised residuals; the 6x6 normal equations are summed in
 float64 and the update is applied on the left, T ← exp(δ) T, δ = (v, w) as :func:`tivne.geometry.se3_exp`.
 
@@ -40,12 +40,13 @@ class OdometryConfig:
     level. photometric / geometric: which residual terms enter. robust: "huber" (k 1.345) or
     "cauchy" (k 2.3849) kernel on the normalised residuals. depth_sigma: (a, b, z0) of σ(z).
     intensity_sigma_min: floor of the photometric scale (1/255, one 8-bit step). brightness_offset:
-    subtract the median photometric residual (a global exposure change). photometric_depth_noise: add the
-    current depth's noise, seen through the image gradient, to each photometric σ. photometric_weight: an
-    extra factor on the photometric information (1 = the noise scales alone decide). geometric_scale:
-    "data" (σ(z) shapes the per-pixel point-to-plane weights, the MAD of the residuals sets the overall
-    scale, at least depth_quantum metres, as the photometric term) or "model" (scale ≥ σ(z)). outlier_sigmas: a pair whose
-    depth difference exceeds this many robust σ is rejected (occlusion, another surface).
+    subtract the median photometric residual (a global exposure change). photometric_depth_noise: add
+    the current depth's noise, seen through the image gradient, to each photometric σ.
+    photometric_weight: an extra factor on the photometric information (1 = the noise scales alone
+    decide). geometric_scale: "data" (σ(z) shapes the per-pixel point-to-plane weights, the MAD of the
+    residuals sets the overall scale, at least depth_quantum metres, as for the photometric term) or
+    "model" (scale ≥ σ(z)). outlier_sigmas: a pair whose depth difference exceeds this many robust σ is
+    rejected (occlusion, another surface).
     max_normal_angle_deg: reject point-to-plane pairs whose normals disagree more. min_depth, max_depth:
     usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than
     this many of its pixels (|w|·f + |v|·f/z̄, z̄ the median depth), a tolerance that scales with the
@@ -138,7 +139,7 @@ def _subsample(r: torch.Tensor, mask: torch.Tensor | None, max_samples: int = 16
 
 
 def robust_scale(r: torch.Tensor, floor: float, mask: torch.Tensor | None = None) -> torch.Tensor:
-    """σ estimate 1.4826·median(|r − median(r)|) of residuals r (N,) where mask (N,) bool, at least ``floor``; a scalar."""
+    """σ estimate 1.4826·median(|r − median(r)|) of residuals r (N,) where mask (N,) bool; a scalar ≥ floor."""
     r = _subsample(r, mask)
     if r.numel() == 0:
         return torch.tensor(floor, dtype=r.dtype, device=r.device)
@@ -164,7 +165,7 @@ def _sample(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
 
 
 def _in_image(uv: torch.Tensor, z: torch.Tensor, shape: tuple[int, ...], min_depth: float) -> torch.Tensor:
-    """(N,) bool: in front of the camera and at least one pixel inside the border (gradients there are padding)."""
+    """(N,) bool: in front of the camera and a pixel or more inside the border (gradients there are padding)."""
     h, w = shape
     return (z > min_depth) & (uv[0] >= 1) & (uv[0] <= w - 2) & (uv[1] >= 1) & (uv[1] <= h - 2)
 
@@ -182,7 +183,8 @@ def _source(level: PyramidLevel, stride: int, T_rgb_depth: torch.Tensor | None, 
     R, t = T_rgb_depth[:3, :3].to(points), T_rgb_depth[:3, 3].to(points)
     points, normals = R @ points + t[:, None], R @ normals
     uv, z = project(points.T, level.K)
-    return _Source(points, _sample(level.warp_image[:, :1], uv.T)[0], normals, _in_image(uv.T, z, sel.shape, min_depth))
+    intensity = _sample(level.warp_image[:, :1], uv.T)[0]
+    return _Source(points, intensity, normals, _in_image(uv.T, z, sel.shape, min_depth))
 
 
 @dataclass(frozen=True)
@@ -216,18 +218,21 @@ def _rows(p: torch.Tensor, g: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
     return torch.stack([g[0], g[1], g[2], y * g[2] - z * g[1], z * g[0] - x * g[2], x * g[1] - y * g[0], r])
 
 
-def _photometric(ref: PyramidLevel, src: _Source, p: torch.Tensor, uv: torch.Tensor, dp_dz: torch.Tensor, valid: torch.Tensor, cfg: OdometryConfig):
+def _photometric(
+    ref: PyramidLevel, src: _Source, p: torch.Tensor, uv: torch.Tensor, dp_dz: torch.Tensor, valid: torch.Tensor, cfg: OdometryConfig
+):
     """Rows (7, N) of :func:`_rows`, normalised weights (N,) (0 where not valid) and IRLS weights (N,).
 
-    The gradient of I_ref(π(p)) w.r.t. p is g = ∇I · ∂π/∂p = (I_u f_x / z, I_v f_y / z, −(I_u f_x x + I_v f_y y) / z²).
+    p (3, N) warped points, uv (2, N) their pixels, dp_dz (3, N) their motion per metre of current depth.
+    The gradient of I_ref(π(p)) w.r.t. p is g = ∇I·∂π/∂p = (I_u f_x, I_v f_y, −(I_u f_x x + I_v f_y y)/z) / z.
     With ``photometric_depth_noise`` each residual's σ² = s² + (g · ∂p/∂z_cur)² σ(z_cur)²: the current
     depth's noise moves the warped pixel, which matters where the reference image has strong gradients.
     """
     s = _sample(ref.warp_image, uv)  # (3, N): I, ∂I/∂u, ∂I/∂v
     valid = valid & src.has_colour
     r = s[0] - src.intensity
-    if cfg.brightness_offset:
-        r = r - _subsample(r, valid).median() if bool(valid.any()) else r
+    if cfg.brightness_offset and bool(valid.any()):
+        r = r - _subsample(r, valid).median()
     x, y, z = p
     gu, gv = s[1] * (ref.K[0, 0] / z), s[2] * (ref.K[1, 1] / z)
     g = torch.stack([gu, gv, -(gu * x + gv * y) / z])
@@ -276,7 +281,9 @@ def normal_equations(rows: torch.Tensor, w: torch.Tensor, block: int = 4096) -> 
     return M[:6, :6], M[:6, 6]
 
 
-def _linearise(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig) -> _Linearisation:
+def _linearise(
+    ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig
+) -> _Linearisation:
     """Warp the current points by T (4, 4) into the reference and build the robust normal equations.
 
     A (4, 4) or None: reference colour frame -> reference depth frame (inverse of its T_rgb_depth).
@@ -301,7 +308,8 @@ def _linearise(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor
     sigma = torch.hypot(kinect_depth_sigma(zd, cfg.depth_sigma), kinect_depth_sigma(geo[0], cfg.depth_sigma))
     dz = ((zd - geo[0]) / sigma).abs()
     valid = usable & (dz <= cfg.outlier_sigmas * robust_scale(dz, 1.0, usable))
-    H, g = torch.zeros(6, 6, dtype=torch.float64, device=p.device), torch.zeros(6, dtype=torch.float64, device=p.device)
+    H = torch.zeros(6, 6, dtype=torch.float64, device=p.device)
+    g = torch.zeros(6, dtype=torch.float64, device=p.device)
     rms = [math.nan, math.nan]
     if cfg.photometric:
         dp_dz = (p - t[:, None]) / src.points[2]  # the current point moves along its ray with its depth
@@ -372,7 +380,9 @@ def track_pyramids(
     return _result(T, converged, lin, n_src, tuple(iterations), config)
 
 
-def _result(T: torch.Tensor, converged: bool, lin: _Linearisation, n_src: int, iterations: tuple[int, ...], cfg: OdometryConfig) -> OdometryResult:
+def _result(
+    T: torch.Tensor, converged: bool, lin: _Linearisation, n_src: int, iterations: tuple[int, ...], cfg: OdometryConfig
+) -> OdometryResult:
     eig = torch.linalg.eigvalsh(lin.H).clamp_min(0.0)
     min_eig, max_eig = float(eig[0]), float(eig[-1])
     pose_std = 1.0 / math.sqrt(min_eig) if min_eig > 0 else math.inf
@@ -401,10 +411,13 @@ def _result(T: torch.Tensor, converged: bool, lin: _Linearisation, n_src: int, i
     )
 
 
-def frame_pyramid(rgb: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, config: OdometryConfig, mask: torch.Tensor | None = None) -> list[PyramidLevel]:
+def frame_pyramid(
+    rgb: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, config: OdometryConfig, mask: torch.Tensor | None = None
+) -> list[PyramidLevel]:
     """:func:`tivne.slam.pyramid.build_pyramid` with the levels, depth range and noise model of ``config``.
 
-    rgb (H, W, 3) in [0, 1], depth (H, W) metres (0 = invalid), K (3, 3), mask (H, W) bool (True = dynamic) or None.
+    rgb (H, W, 3) in [0, 1], depth (H, W) metres (0 = invalid), K (3, 3), mask (H, W) bool (True =
+    dynamic) or None.
     """
     return build_pyramid(rgb, depth, K, config.levels, mask, (config.min_depth, config.max_depth), config.depth_sigma)
 

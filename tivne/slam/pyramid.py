@@ -126,7 +126,8 @@ def vertex_normals(vertices: torch.Tensor, valid: torch.Tensor, f: float, coeffs
     z = vertices[2]
     jump = max_depth_jump(z, f, coeffs)
     ok = valid.clone()
-    for sl in ((slice(1, -1), slice(2, None)), (slice(1, -1), slice(0, -2)), (slice(2, None), slice(1, -1)), (slice(0, -2), slice(1, -1))):
+    inner, lo, hi = slice(1, -1), slice(0, -2), slice(2, None)
+    for sl in ((inner, hi), (inner, lo), (hi, inner), (lo, inner)):  # right, left, down, up neighbours
         ok &= m[sl] & ((v[2][sl] - z).abs() <= jump)
     n = torch.stack([dx[1] * dy[2] - dx[2] * dy[1], dx[2] * dy[0] - dx[0] * dy[2], dx[0] * dy[1] - dx[1] * dy[0]])
     # 1/|n| with the sign that makes n face the camera; 0 where undefined (norm(dim=0) is slow on CPU).
@@ -135,7 +136,10 @@ def vertex_normals(vertices: torch.Tensor, valid: torch.Tensor, f: float, coeffs
     return n * torch.where(ok, inv, torch.zeros_like(inv))
 
 
-def _level(K: torch.Tensor, intensity: torch.Tensor, depth: torch.Tensor, dynamic: torch.Tensor, depth_range: tuple[float, float], coeffs: Coeffs) -> PyramidLevel:
+def _level(
+    K: torch.Tensor, intensity: torch.Tensor, depth: torch.Tensor, dynamic: torch.Tensor, depth_range: tuple[float, float], coeffs: Coeffs
+) -> PyramidLevel:
+    """One pyramid level from its K (3, 3), intensity, depth and dynamic mask (H, W)."""
     usable = (depth >= depth_range[0]) & (depth <= depth_range[1]) & ~dynamic
     depth = torch.where(usable, depth, torch.zeros_like(depth))
     h, w = depth.shape
