@@ -8,8 +8,9 @@ Poses are chained (c2w_cur = c2w_ref @ T_ref_cur) from the first frame's ground-
 guess of every pair is a constant-velocity prediction. ``keyframe`` mode tracks against the last keyframe
 and makes the current frame the new keyframe when its overlap or inlier ratio with the keyframe drops
 below the thresholds (a failed keyframe pair is re-tracked against the previous frame). Prints ATE
-(SE(3)-aligned to ground truth), s/frame (wall and process CPU time of pyramid + tracking, not image
-loading), the number of frames the odometry flagged as not ok and those with a low inlier ratio.
+(SE(3)-aligned to ground truth), the per-frame relative pose error, s/frame (wall and process CPU
+time of pyramid + tracking, not image loading), the number of frames the odometry flagged as not ok
+and those with a low inlier ratio.
 Figures are printed, never asserted.
 """
 
@@ -29,7 +30,7 @@ sys.path.insert(0, str(REPO))
 
 from data_modules.tum import TUMSequence  # noqa: E402
 from tivne.geometry import invert_pose, orthonormalize_pose, se3_exp, se3_log  # noqa: E402
-from tivne.metrics import absolute_trajectory_error  # noqa: E402
+from tivne.metrics import absolute_trajectory_error, relative_pose_error  # noqa: E402
 from tivne.slam.odometry import OdometryConfig, frame_pyramid, track_pyramids  # noqa: E402
 
 
@@ -123,12 +124,15 @@ def run(args: argparse.Namespace) -> dict[str, float]:
             keyframes += 1
         prev_pyr, prev_cd = pyr, cur_cd
     have = [k for k, g in enumerate(gt) if g is not None]
-    ate = absolute_trajectory_error(torch.stack([c2w[k] for k in have]).numpy(), torch.stack([gt[k] for k in have]).double().numpy())
+    est, ref = torch.stack([c2w[k] for k in have]).numpy(), torch.stack([gt[k] for k in have]).double().numpy()
+    ate, rpe = absolute_trajectory_error(est, ref), relative_pose_error(est, ref, delta=1)
     return {
         "frames": len(ids),
         "ate_rmse_m": ate.rmse,
         "ate_mean_m": ate.mean,
         "ate_max_m": ate.max,
+        "rpe_trans_rmse_m": rpe.trans_rmse_m,  # per frame (frames without ground truth are skipped)
+        "rpe_rot_rmse_deg": rpe.rot_rmse_deg,
         "s_per_frame": track_s / max(len(ids) - 1, 1),
         "cpu_s_per_frame": cpu_s / max(len(ids) - 1, 1),
         "not_ok_frames": not_ok,
@@ -143,7 +147,7 @@ def main() -> None:
     print(f"odometry on {Path(args.root).name}: mode={args.mode} levels={args.levels} "
           f"photometric={not args.no_photometric} geometric={not args.no_geometric} robust={args.robust}")
     for key, val in figures.items():
-        print(f"  {key:<14} {val:.4f}" if isinstance(val, float) else f"  {key:<14} {val}")
+        print(f"  {key:<18} {val:.4f}" if isinstance(val, float) else f"  {key:<18} {val}")
     if args.json:
         Path(args.json).write_text(json.dumps({**vars(args), **figures}, indent=2))
 
