@@ -46,7 +46,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--levels", type=int, default=3)
     p.add_argument("--iterations", type=int, default=OdometryConfig.max_iterations)
     p.add_argument("--robust", choices=("huber", "cauchy"), default="huber")
-    p.add_argument("--finest-stride", type=int, default=OdometryConfig.finest_stride)
+    p.add_argument("--max-points", type=int, default=OdometryConfig.max_points, help="per level (0 = all)")
     p.add_argument("--outlier-sigmas", type=float, default=OdometryConfig.outlier_sigmas)
     p.add_argument("--no-brightness-offset", action="store_true")
     p.add_argument("--photometric-weight", type=float, default=OdometryConfig.photometric_weight)
@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> dict[str, float]:
     ids = ids[: args.frames] if args.frames > 0 else ids
     cfg = OdometryConfig(
         levels=args.levels, max_iterations=args.iterations, photometric=not args.no_photometric,
-        geometric=not args.no_geometric, robust=args.robust, finest_stride=args.finest_stride,
+        geometric=not args.no_geometric, robust=args.robust, max_points=args.max_points,
         outlier_sigmas=args.outlier_sigmas, brightness_offset=not args.no_brightness_offset,
         tol_pixels=args.tol_pixels, photometric_weight=args.photometric_weight, geometric_scale=args.geometric_scale,
     )

@@ -50,8 +50,9 @@ class OdometryConfig:
     max_normal_angle_deg: reject point-to-plane pairs whose normals disagree more. min_depth, max_depth:
     usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than
     this many of its pixels (|w|·f + |v|·f/z̄, z̄ the median depth), a tolerance that scales with the
-    level's resolution. damping: Levenberg–Marquardt λ relative to diag(H). finest_stride: use every k-th
-    pixel (both axes) of the current frame at level 0. inlier_sigmas: a usable pair is an inlier when
+    level's resolution. damping: Levenberg–Marquardt λ relative to diag(H). max_points: at most about
+    this many current pixels per level (every k-th pixel on both axes; 0 = all): past a few ten thousand
+    the estimate is limited by systematic errors, not by the count. inlier_sigmas: a usable pair is an inlier when
     its depth difference is within this many σ_pair of the sensor model (absolute, so it measures the
     alignment, not the adaptive scale). min_correspondences, min_overlap, min_inlier_ratio,
     max_pose_std: thresholds of :attr:`OdometryResult.ok`.
@@ -73,9 +74,9 @@ class OdometryConfig:
     max_normal_angle_deg: float = 30.0
     min_depth: float = 0.2
     max_depth: float = 6.0
-    tol_pixels: float = 0.02
+    tol_pixels: float = 0.05
     damping: float = 1e-4
-    finest_stride: int = 2
+    max_points: int = 20000
     inlier_sigmas: float = 3.0
     min_correspondences: int = 64
     min_overlap: float = 0.3
@@ -89,8 +90,8 @@ class OdometryConfig:
             raise ValueError(f"odometry.geometric_scale must be 'data' or 'model', got {self.geometric_scale!r}")
         if self.robust not in ("huber", "cauchy"):
             raise ValueError(f"odometry.robust must be 'huber' or 'cauchy', got {self.robust!r}")
-        if self.levels < 1 or self.max_iterations < 1 or self.finest_stride < 1:
-            raise ValueError("odometry: levels, max_iterations and finest_stride must be >= 1")
+        if self.levels < 1 or self.max_iterations < 1 or self.max_points < 0:
+            raise ValueError("odometry: levels and max_iterations must be >= 1, max_points >= 0")
 
 
 @dataclass(frozen=True)
@@ -170,8 +171,9 @@ def _in_image(uv: torch.Tensor, z: torch.Tensor, shape: tuple[int, ...], min_dep
     return (z > min_depth) & (uv[0] >= 1) & (uv[0] <= w - 2) & (uv[1] >= 1) & (uv[1] <= h - 2)
 
 
-def _source(level: PyramidLevel, stride: int, T_rgb_depth: torch.Tensor | None, min_depth: float) -> _Source:
+def _source(level: PyramidLevel, max_points: int, T_rgb_depth: torch.Tensor | None, min_depth: float) -> _Source:
     sel = level.usable
+    stride = math.ceil(math.sqrt(int(sel.sum()) / max_points)) if max_points > 0 else 1
     if stride > 1:
         grid = torch.zeros_like(sel)
         grid[::stride, ::stride] = True
@@ -373,7 +375,7 @@ def track_pyramids(
     cur_rgb_depth = None if cur_rgb_depth is None else cur_rgb_depth.to(device, torch.float64)
     iterations, converged, lin, n_src = [], False, None, 0
     for level in reversed(range(min(len(ref), len(cur), config.levels))):
-        src = _source(cur[level], config.finest_stride if level == 0 else 1, cur_rgb_depth, config.min_depth)
+        src = _source(cur[level], config.max_points, cur_rgb_depth, config.min_depth)
         T, its, converged, lin = _track_level(ref[level], src, T, A, config)
         iterations.append(its)
         n_src = src.points.shape[1]

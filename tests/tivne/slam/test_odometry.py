@@ -65,14 +65,28 @@ def test_initial_guess_is_used(room):
     assert pose_error(res.T_ref_cur, dT)[0] < 1.0
 
 
+def close_up(seq: MovingCubeSequence, t0: float, t1: float, distance: float) -> torch.Tensor:
+    """(4, 4) c2w looking at the moving cube's mean position over [t0, t1] from ``distance`` metres."""
+    mid = (seq.object_poses(t0)["cube"][:3, 3] + seq.object_poses(t1)["cube"][:3, 3]) / 2
+    pos = mid + torch.tensor([0.1, -distance, 0.3], dtype=torch.float64)
+    z = (mid - pos) / (mid - pos).norm()
+    x = torch.linalg.cross(z, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
+    x = x / x.norm()
+    c2w = torch.eye(4, dtype=torch.float64)
+    c2w[:3, :3], c2w[:3, 3] = torch.stack([x, torch.linalg.cross(z, x), z], 1), pos
+    return c2w
+
+
 def test_dynamic_mask_excludes_the_moving_cube(room):
-    P, dT = room.camera_pose(0), motion(6, 0.03, 3.0)
+    P, dT = close_up(room, 0.0, 1.5, 0.55), motion(6, 0.02, 2.0)
     ref, cur = view(room, P, t=0.0), view(room, P @ dT, t=1.5)  # the cube moves ~15 cm in between
-    assert ref[2].float().mean() > 0.05 and cur[2].float().mean() > 0.05
+    assert 0.4 < ref[2].float().mean() < 0.6 and 0.4 < cur[2].float().mean() < 0.6  # half the image moves
     K = room.intrinsics.K()
     res = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], K, ref_mask=ref[2], cur_mask=cur[2])
     t_err, r_err = pose_error(res.T_ref_cur, dT)
     assert t_err < 1.0 and r_err < 0.05 and res.ok, (t_err, r_err)
+    unmasked = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], K)
+    assert pose_error(unmasked.T_ref_cur, dT)[0] > 5.0 and not unmasked.ok  # the cube drags it: the mask matters
     everything = torch.ones(H, W, dtype=torch.bool)
     blind = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], K, cur_mask=everything)
     assert not blind.ok and blind.num_valid == 0
