@@ -416,11 +416,7 @@ def _result(
 def frame_pyramid(
     rgb: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, config: OdometryConfig, mask: torch.Tensor | None = None
 ) -> list[PyramidLevel]:
-    """:func:`tivne.slam.pyramid.build_pyramid` with the levels, depth range and noise model of ``config``.
-
-    rgb (H, W, 3) in [0, 1], depth (H, W) metres (0 = invalid), K (3, 3), mask (H, W) bool (True =
-    dynamic) or None.
-    """
+    """:func:`tivne.slam.pyramid.build_pyramid` (same arguments) with the levels, depth range and noise of ``config``."""
     return build_pyramid(rgb, depth, K, config.levels, mask, (config.min_depth, config.max_depth), config.depth_sigma)
 
 
