@@ -13,9 +13,8 @@ Kinect v1 axial noise model (it shapes the per-pixel weights) and s_G the MAD of
 weights (Huber or Cauchy) act on the normalised residuals; the 6x6 normal equations are summed in
 float64 and the update is applied on the left, T ← exp(δ) T, δ = (v, w) as :func:`tivne.geometry.se3_exp`.
 
-References: Steinbrücker, Sturm, Cremers (ICCVW 2011); Kerl, Sturm, Cremers (ICRA 2013, IROS 2013);
-Whelan et al., ElasticFusion (RSS 2015); Open3D's hybrid RGB-D odometry; Nguyen, Izadi, Lovell
-(3DIMPVT 2012) for σ(z) = 0.0012 + 0.0019 (z − 0.4)² m.
+After Steinbrücker et al. (2011), Kerl et al. (DVO, 2013), ElasticFusion (2015), Open3D's hybrid odometry;
+σ(z) = 0.0012 + 0.0019 (z − 0.4)² m from Nguyen, Izadi, Lovell (3DIMPVT 2012).
 """
 
 from __future__ import annotations
@@ -28,9 +27,7 @@ import torch.nn.functional as F
 
 from tivne.geometry import invert_pose, project, se3_exp
 from tivne.slam.pyramid import KINECT_SIGMA, PyramidLevel, build_pyramid, kinect_depth_sigma
-
-MAD_TO_SIGMA = 1.4826  # MAD of a Gaussian times this is its σ
-
+from tivne.slam.robust import cauchy_weights, huber_weights, robust_scale, subsample
 
 @dataclass(frozen=True)
 class OdometryConfig:
@@ -49,8 +46,8 @@ class OdometryConfig:
     rejected (occlusion, another surface).
     max_normal_angle_deg: reject point-to-plane pairs whose normals disagree more. min_depth, max_depth:
     usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than
-    this many of its pixels (|w|·f + |v|·f/z̄, z̄ the median depth), a tolerance that scales with the
-    level's resolution. damping: Levenberg–Marquardt λ relative to diag(H). max_points: at most about
+    this many of its pixels (|w|·f + |v|·f/z̄, z̄ the median depth); stall_pixels: or by less than this
+    without shrinking. damping: Levenberg–Marquardt λ relative to diag(H). max_points: at most about
     this many current pixels per level (every k-th pixel on both axes; 0 = all): past a few ten thousand
     the estimate is limited by systematic errors, not by the count. inlier_sigmas: a usable pair is an inlier when
     its depth difference is within this many σ_pair of the sensor model (absolute, so it measures the
@@ -75,6 +72,7 @@ class OdometryConfig:
     min_depth: float = 0.2
     max_depth: float = 6.0
     tol_pixels: float = 0.05
+    stall_pixels: float = 0.25
     damping: float = 1e-4
     max_points: int = 20000
     inlier_sigmas: float = 3.0
@@ -120,31 +118,6 @@ class OdometryResult:
     condition: float
     pose_std: float
     ok: bool
-
-
-def huber_weights(e: torch.Tensor, k: float = 1.345) -> torch.Tensor:
-    """IRLS weights ρ'(e)/e of the Huber loss on normalised residuals e (...): 1 inside k, k/|e| outside."""
-    a = e.abs()
-    return torch.where(a <= k, torch.ones_like(a), k / a.clamp_min(1e-12))
-
-
-def cauchy_weights(e: torch.Tensor, k: float = 2.3849) -> torch.Tensor:
-    """IRLS weights of the Cauchy loss on normalised residuals e (...): 1 / (1 + (e/k)²)."""
-    return 1.0 / (1.0 + (e / k) ** 2)
-
-
-def _subsample(r: torch.Tensor, mask: torch.Tensor | None, max_samples: int = 16384) -> torch.Tensor:
-    """The entries of r (N,) where mask (N,) bool, regularly thinned to about max_samples (for medians)."""
-    step = r.numel() // max_samples + 1
-    return r[::step] if mask is None else r[::step][mask[::step]]
-
-
-def robust_scale(r: torch.Tensor, floor: float, mask: torch.Tensor | None = None) -> torch.Tensor:
-    """σ estimate 1.4826·median(|r − median(r)|) of residuals r (N,) where mask (N,) bool; a scalar ≥ floor."""
-    r = _subsample(r, mask)
-    if r.numel() == 0:
-        return torch.tensor(floor, dtype=r.dtype, device=r.device)
-    return (MAD_TO_SIGMA * (r - r.median()).abs().median()).clamp_min(floor)
 
 
 @dataclass(frozen=True)
@@ -234,7 +207,7 @@ def _photometric(
     valid = valid & src.has_colour
     r = s[0] - src.intensity
     if cfg.brightness_offset and bool(valid.any()):
-        r = r - _subsample(r, valid).median()
+        r = r - subsample(r, valid).median()
     x, y, z = p
     gu, gv = s[1] * (ref.K[0, 0] / z), s[2] * (ref.K[1, 1] / z)
     g = torch.stack([gu, gv, -(gu * x + gv * y) / z])
@@ -310,8 +283,7 @@ def _linearise(
     sigma = torch.hypot(kinect_depth_sigma(zd, cfg.depth_sigma), kinect_depth_sigma(geo[0], cfg.depth_sigma))
     dz = ((zd - geo[0]) / sigma).abs()
     valid = usable & (dz <= cfg.outlier_sigmas * robust_scale(dz, 1.0, usable))
-    H = torch.zeros(6, 6, dtype=torch.float64, device=p.device)
-    g = torch.zeros(6, dtype=torch.float64, device=p.device)
+    H, g = torch.zeros(6, 6, dtype=torch.float64, device=p.device), torch.zeros(6, dtype=torch.float64, device=p.device)
     rms = [math.nan, math.nan]
     if cfg.photometric:
         dp_dz = (p - t[:, None]) / src.points[2]  # the current point moves along its ray with its depth
@@ -335,17 +307,24 @@ def _solve(H: torch.Tensor, g: torch.Tensor, damping: float) -> torch.Tensor:
 
 
 def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig):
-    """Gauss–Newton iterations at one level -> (T, iterations, converged, last linearisation)."""
+    """Gauss–Newton iterations at one level -> (T, iterations, converged, last linearisation).
+
+    Converged: the update moves the image by < tol_pixels, or by < stall_pixels without shrinking to
+    half the previous one (a limit cycle of the discrete projective association and the reweighting).
+    """
     f = float(ref.K[0, 0])
     z_mid = float(src.points[2].median()) if src.points.shape[1] else 1.0
+    last = math.inf
     for it in range(cfg.max_iterations):
         lin = _linearise(ref, src, T, A, cfg)
         if lin.num_valid < cfg.min_correspondences:
             return T, it, False, lin
         delta = _solve(lin.H, lin.g, cfg.damping)
         T = se3_exp(delta) @ T
-        if (float(delta[3:].norm()) + float(delta[:3].norm()) / z_mid) * f < cfg.tol_pixels:
+        step = (float(delta[3:].norm()) + float(delta[:3].norm()) / z_mid) * f
+        if step < cfg.tol_pixels or (step < cfg.stall_pixels and step > 0.5 * last):
             return T, it + 1, True, lin
+        last = step
     return T, cfg.max_iterations, False, lin
 
 

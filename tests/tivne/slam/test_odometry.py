@@ -9,7 +9,8 @@ import torch
 
 from data_modules.moving_cube import CUBE, MovingCubeSequence
 from tivne.geometry import backproject, invert_pose, se3_exp
-from tivne.slam.odometry import OdometryConfig, cauchy_weights, huber_weights, normal_equations, rgbd_odometry, robust_scale
+from tivne.slam.odometry import OdometryConfig, normal_equations, rgbd_odometry
+from tivne.slam.robust import cauchy_weights, huber_weights, robust_scale
 from tivne.slam.pyramid import build_pyramid, downsample_depth, downsample_K, downsample_mask, image_gradients, vertex_normals
 
 W, H = 160, 120
