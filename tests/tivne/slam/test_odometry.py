@@ -1,0 +1,203 @@
+"""Dense RGB-D odometry (tivne/slam/odometry.py): known motions, robust weights, pyramid, failure signals."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from data_modules.moving_cube import CUBE, MovingCubeSequence
+from tivne.geometry import backproject, invert_pose, se3_exp
+from tivne.slam.odometry import OdometryConfig, normal_equations, rgbd_odometry
+from tivne.slam.robust import cauchy_weights, huber_weights, robust_scale
+from tivne.slam.pyramid import build_pyramid, downsample_depth, downsample_K, downsample_mask, image_gradients, vertex_normals
+
+W, H = 160, 120
+
+
+@pytest.fixture(scope="module")
+def room() -> MovingCubeSequence:
+    """The procedural room, exact depth and noise-free (8-bit) colour."""
+    return MovingCubeSequence(num_frames=2, width=W, height=H, depth_noise=False, rgb_noise=0.0, cache_dir=None)
+
+
+def view(seq: MovingCubeSequence, c2w: torch.Tensor, t: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """rgb (H, W, 3) quantised to 8 bits, depth (H, W) float32, cube mask (H, W) of the room seen from c2w at time t."""
+    hit = seq.raycast(c2w, t)
+    rgb = (seq.shade(hit["prim"], hit["local"], hit["normal"]).reshape(H, W, 3) * 255).round() / 255
+    return rgb, hit["depth"].reshape(H, W).float(), (hit["prim"] == CUBE).reshape(H, W)
+
+
+def motion(seed: int, trans_m: float, rot_deg: float) -> torch.Tensor:
+    """(4, 4) float64 rigid motion with a random axis and direction of the given sizes."""
+    xi = torch.randn(6, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+    return se3_exp(torch.cat([xi[:3] / xi[:3].norm() * trans_m, xi[3:] / xi[3:].norm() * math.radians(rot_deg)]))
+
+
+def pose_error(T: torch.Tensor, truth: torch.Tensor) -> tuple[float, float]:
+    """(translation error mm, rotation error deg) of T against truth."""
+    E = invert_pose(truth) @ T.to(truth.dtype)
+    return float(E[:3, 3].norm()) * 1e3, math.degrees(float(torch.arccos(((E[:3, :3].trace() - 1) / 2).clamp(-1, 1))))
+
+
+@pytest.mark.parametrize(
+    "seed, trans_m, rot_deg, terms",
+    [(0, 0.02, 2.0, "joint"), (1, 0.05, 5.0, "joint"), (2, 0.0, 5.0, "joint"), (3, 0.03, 5.0, "geometric"), (4, 0.03, 3.0, "photometric")],
+)
+def test_known_motion_is_recovered(room, seed, trans_m, rot_deg, terms):
+    P = room.camera_pose(0)
+    dT = motion(seed, trans_m, rot_deg)
+    ref, cur = view(room, P), view(room, P @ dT)
+    cfg = OdometryConfig(photometric=terms != "geometric", geometric=terms != "photometric")
+    res = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], room.intrinsics.K(), config=cfg)
+    t_err, r_err = pose_error(res.T_ref_cur, dT)  # c2w_cur = c2w_ref @ T_ref_cur
+    assert t_err < 1.0 and r_err < 0.05, (t_err, r_err, res)
+    assert res.converged and res.ok and res.inlier_ratio > 0.9 and res.overlap > 0.7
+    assert len(res.iterations) == cfg.levels
+    assert math.isnan(res.rms_geometric) == (terms == "photometric") and math.isnan(res.rms_photometric) == (terms == "geometric")
+
+
+def test_initial_guess_is_used(room):
+    P, dT = room.camera_pose(0), motion(5, 0.03, 4.0)
+    ref, cur = view(room, P), view(room, P @ dT)
+    res = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], room.intrinsics.K(), T_init=dT)
+    cold = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], room.intrinsics.K())
+    assert res.ok and sum(res.iterations) < sum(cold.iterations)
+    assert pose_error(res.T_ref_cur, dT)[0] < 1.0
+
+
+def close_up(seq: MovingCubeSequence, t0: float, t1: float, distance: float) -> torch.Tensor:
+    """(4, 4) c2w looking at the moving cube's mean position over [t0, t1] from ``distance`` metres."""
+    mid = (seq.object_poses(t0)["cube"][:3, 3] + seq.object_poses(t1)["cube"][:3, 3]) / 2
+    pos = mid + torch.tensor([0.1, -distance, 0.3], dtype=torch.float64)
+    z = (mid - pos) / (mid - pos).norm()
+    x = torch.linalg.cross(z, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
+    x = x / x.norm()
+    c2w = torch.eye(4, dtype=torch.float64)
+    c2w[:3, :3], c2w[:3, 3] = torch.stack([x, torch.linalg.cross(z, x), z], 1), pos
+    return c2w
+
+
+def test_dynamic_mask_excludes_the_moving_cube(room):
+    P, dT = close_up(room, 0.0, 1.5, 0.55), motion(6, 0.02, 2.0)
+    ref, cur = view(room, P, t=0.0), view(room, P @ dT, t=1.5)  # the cube moves ~15 cm in between
+    assert 0.4 < ref[2].float().mean() < 0.6 and 0.4 < cur[2].float().mean() < 0.6  # half the image moves
+    K = room.intrinsics.K()
+    res = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], K, ref_mask=ref[2], cur_mask=cur[2])
+    t_err, r_err = pose_error(res.T_ref_cur, dT)
+    assert t_err < 1.0 and r_err < 0.05 and res.ok, (t_err, r_err)
+    unmasked = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], K)
+    assert pose_error(unmasked.T_ref_cur, dT)[0] > 5.0 and not unmasked.ok  # the cube drags it: the mask matters
+    everything = torch.ones(H, W, dtype=torch.bool)
+    blind = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], K, cur_mask=everything)
+    assert not blind.ok and blind.num_valid == 0
+
+
+def test_depth_colour_time_offset_is_compensated(room):
+    """Depth taken at another pose than colour (a 20 ms offset at 60 °/s), in both frames."""
+    from tivne.slam.odometry import OdometryConfig as Cfg, frame_pyramid, track_pyramids
+
+    P, dT = room.camera_pose(0), motion(9, 0.02, 3.0)
+    ref_cd, cur_cd = motion(10, 0.004, 1.2), motion(11, 0.004, 1.2)  # T_rgb_depth of each frame
+    K, cfg = room.intrinsics.K(), Cfg()
+    ref_rgb, cur_rgb = view(room, P)[0], view(room, P @ dT)[0]
+    ref_depth, cur_depth = view(room, P @ ref_cd)[1], view(room, P @ dT @ cur_cd)[1]
+    ref, cur = frame_pyramid(ref_rgb, ref_depth, K, cfg), frame_pyramid(cur_rgb, cur_depth, K, cfg)
+    res = track_pyramids(ref, cur, None, cfg, ref_rgb_depth=ref_cd, cur_rgb_depth=cur_cd)
+    t_err, r_err = pose_error(res.T_ref_cur, dT)
+    assert t_err < 1.0 and r_err < 0.05 and res.ok, (t_err, r_err)
+    naive = track_pyramids(ref, cur, None, cfg)
+    assert pose_error(naive.T_ref_cur, dT)[1] > 0.1  # ignoring the offset costs ~ the offset's rotation
+
+
+def test_no_depth_reports_failure(room):
+    P = room.camera_pose(0)
+    ref, cur = view(room, P), view(room, P @ motion(7, 0.01, 1.0))
+    res = rgbd_odometry(ref[0], ref[1], cur[0], torch.zeros(H, W), room.intrinsics.K())
+    assert not res.ok and not res.converged and res.num_valid == 0 and res.overlap == 0.0
+    res = rgbd_odometry(ref[0], torch.zeros(H, W), cur[0], cur[1], room.intrinsics.K())
+    assert not res.ok and res.num_valid == 0
+
+
+def test_no_overlap_reports_failure(room):
+    P = room.camera_pose(0)
+    turn = torch.eye(4, dtype=torch.float64)
+    turn[:3, :3] = se3_exp(torch.tensor([0, 0, 0, 0, math.pi, 0], dtype=torch.float64))[:3, :3]  # look backwards
+    ref, cur = view(room, P), view(room, P @ turn)
+    res = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], room.intrinsics.K())
+    assert not res.ok and res.inlier_ratio < 0.3
+
+
+def test_degenerate_plane_is_flagged():
+    """A textureless fronto-parallel wall fixes only 3 of 6 degrees of freedom."""
+    K = torch.tensor([[128.0, 0, 79.5], [0, 128.0, 59.5], [0, 0, 1]])
+    rgb, depth = torch.full((H, W, 3), 0.5), torch.full((H, W), 2.0)
+    res = rgbd_odometry(rgb, depth, rgb, depth, K)
+    assert res.num_valid > 1000 and not res.ok and res.pose_std > 0.01 and res.condition > 1e6
+
+
+def test_robust_weights_at_known_residuals():
+    e = torch.tensor([0.0, 1.0, 1.345, 2.69, -5.38])
+    assert torch.allclose(huber_weights(e), torch.tensor([1.0, 1.0, 1.0, 0.5, 0.25]))
+    assert torch.allclose(cauchy_weights(torch.tensor([0.0, 2.3849, -2.3849 * 3])), torch.tensor([1.0, 0.5, 0.1]))
+    r = torch.randn(200_000, generator=torch.Generator().manual_seed(0)) * 0.03 + 0.2
+    r[:20_000] = 5.0  # 10 % gross outliers move the MAD scale by ~15 %, a standard deviation by 50x
+    assert abs(float(robust_scale(r, 1e-6)) - 0.03) < 0.006 and float(r.std()) > 1.0
+    assert float(robust_scale(torch.zeros(10), 0.01)) == pytest.approx(0.01)  # floor
+    assert float(robust_scale(r, 1e-6, mask=torch.arange(r.numel()) >= 20_000)) == pytest.approx(0.03, rel=0.05)
+
+
+def test_pyramid_shapes_intrinsics_and_invalid_depth(room):
+    rgb, depth, mask = view(room, room.camera_pose(0))
+    K = room.intrinsics.K()
+    levels = build_pyramid(rgb, depth, K, 3, mask)
+    assert [tuple(lv.intensity.shape) for lv in levels] == [(120, 160), (60, 80), (30, 40)]
+    assert levels[1].warp_image.shape == (1, 3, 60, 80) and levels[2].geometry.shape == (7, 30, 40)
+    assert not levels[0].usable[mask].any() and (levels[0].depth[mask] == 0).all()  # dynamic pixels are excluded
+    # Coarse pixel (u, v) covers fine pixels 2u, 2u + 1: its ray is the ray through the block centre.
+    K1 = downsample_K(K)
+    uv = torch.tensor([[10.0, 7.0]])
+    assert torch.allclose(backproject(uv, torch.ones(1), K1), backproject(2 * uv + 0.5, torch.ones(1), K), atol=1e-6)
+    # Invalid depth never averages in; a block across a depth edge keeps the front surface.
+    d = torch.tensor([[1.0, 0.0, 3.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 1.0, 0.0, 0.0]])
+    assert torch.allclose(downsample_depth(d), torch.tensor([[1.0, 1.0, 0.0]]))
+    assert downsample_mask(torch.tensor([[True, False], [False, False]])).tolist() == [[True]]
+
+
+def test_gradients_and_normals_of_known_surfaces():
+    u = torch.arange(40.0)[None].expand(30, 40)
+    g = image_gradients(0.01 * u)
+    assert torch.allclose(g[0, :, 1:-1], torch.full((30, 38), 0.01)) and g[1].abs().max() < 1e-7
+    K = torch.tensor([[50.0, 0, 19.5], [0, 50.0, 14.5], [0, 0, 1]])
+    wall = backproject(torch.stack([u, torch.arange(30.0)[:, None].expand(30, 40)], -1), torch.full((30, 40), 2.0), K)
+    n = vertex_normals(wall.permute(2, 0, 1), torch.ones(30, 40, dtype=torch.bool), 50.0)
+    assert torch.allclose(n[:, 1:-1, 1:-1], torch.tensor([0.0, 0.0, -1.0])[:, None, None].expand(3, 28, 38), atol=1e-5)
+    assert (n[:, 0] == 0).all()  # no neighbour beyond the border: undefined
+
+
+def test_normal_equations_match_float64():
+    rows = torch.randn(7, 10_000, generator=torch.Generator().manual_seed(1))
+    w = torch.rand(10_000, generator=torch.Generator().manual_seed(2))
+    H, g = normal_equations(rows, w, block=1024)
+    A = rows.double()
+    assert torch.allclose(H, (A[:6] * w.double()) @ A[:6].T, rtol=1e-5) and torch.allclose(g, A[:6] @ (w.double() * A[6]), rtol=1e-5)
+    assert H.dtype == torch.float64
+
+
+def test_config_rejects_nonsense():
+    with pytest.raises(ValueError):
+        OdometryConfig(photometric=False, geometric=False)
+    with pytest.raises(ValueError):
+        OdometryConfig(robust="l2")
+    with pytest.raises(ValueError):
+        OdometryConfig(geometric_scale="guess")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_cuda_matches_cpu(room):
+    P, dT = room.camera_pose(0), motion(8, 0.02, 2.0)
+    ref, cur = view(room, P), view(room, P @ dT)
+    K = room.intrinsics.K()
+    res = rgbd_odometry(*(x.cuda() for x in (ref[0], ref[1], cur[0], cur[1], K)))
+    assert res.T_ref_cur.is_cuda and pose_error(res.T_ref_cur.cpu(), dT)[0] < 1.0

@@ -1,0 +1,183 @@
+"""RGB-D image pyramids for dense odometry: intensity, gradients, edge-aware depth, vertices, normals.
+
+Level l is the image downsampled 2^l times by 2x2 blocks, so a coarse pixel u covers fine pixels 2u and
+2u + 1 and its camera matrix is :func:`downsample_K`. Depth is downsampled without averaging invalid
+pixels or across depth edges; dynamic (masked) pixels are removed before any downsampling.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+KINECT_SIGMA = (0.0012, 0.0019, 0.4)  # σ(z) = a + b (z − z0)², metres (Nguyen et al. 2012)
+Coeffs = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class PyramidLevel:
+    """One RGB-D pyramid level, H x W pixels.
+
+    K (3, 3); intensity (H, W) in [0, 1]; warp_image (1, 3, H, W) = [I, ∂I/∂u, ∂I/∂v] for bilinear
+    sampling; geometry (7, H, W) = [depth (0 = invalid), vertex (3), unit normal facing the camera (3),
+    zero where undefined], packed so one gather serves a correspondence; usable (H, W) bool = depth in
+    range and not dynamic.
+    """
+
+    K: torch.Tensor
+    intensity: torch.Tensor
+    warp_image: torch.Tensor
+    geometry: torch.Tensor
+    usable: torch.Tensor
+
+    @property
+    def depth(self) -> torch.Tensor:
+        """(H, W) metres, 0 = invalid or dynamic."""
+        return self.geometry[0]
+
+    @property
+    def vertices(self) -> torch.Tensor:
+        """(H, W, 3) camera-frame points."""
+        return self.geometry[1:4].permute(1, 2, 0)
+
+    @property
+    def normals(self) -> torch.Tensor:
+        """(H, W, 3) unit normals facing the camera, zero where undefined."""
+        return self.geometry[4:7].permute(1, 2, 0)
+
+
+def kinect_depth_sigma(z: torch.Tensor, coeffs: Coeffs = KINECT_SIGMA) -> torch.Tensor:
+    """Axial depth noise σ(z) = a + b (z − z0)² [m] of a Kinect v1, z (...) -> (...)."""
+    a, b, z0 = coeffs
+    return a + b * (z - z0) ** 2
+
+
+def _blocks(x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """(H, W) -> four (H//2, W//2) strided views, the pixels of each 2x2 block (odd last row/column dropped)."""
+    h, w = x.shape[0] // 2 * 2, x.shape[1] // 2 * 2
+    return x[0:h:2, 0:w:2], x[0:h:2, 1:w:2], x[1:h:2, 0:w:2], x[1:h:2, 1:w:2]
+
+
+def downsample_intensity(img: torch.Tensor) -> torch.Tensor:
+    """(H, W) -> (H//2, W//2), the mean of each 2x2 block (new pixel u sits at 2u + 0.5, see downsample_K)."""
+    a, b, c, d = _blocks(img)
+    return (a + b + c + d) * 0.25
+
+
+def downsample_depth(depth: torch.Tensor, coeffs: Coeffs = KINECT_SIGMA, n_sigma: float = 3.0) -> torch.Tensor:
+    """(H, W) -> (H//2, W//2): mean of the valid depths of each 2x2 block within n_sigma·σ(z) of its nearest one.
+
+    Invalid (0) depths never enter the mean, and a block straddling a depth edge keeps the front surface
+    instead of a depth between two surfaces that belongs to neither; 0 where the block has no depth.
+    """
+    blocks = _blocks(depth)
+    zmin = torch.stack([torch.where(b > 0, b, torch.full_like(b, math.inf)) for b in blocks]).amin(0)
+    limit = zmin + n_sigma * kinect_depth_sigma(zmin, coeffs)
+    total, count = torch.zeros_like(zmin), torch.zeros_like(zmin)
+    for b in blocks:
+        keep = (b > 0) & (b <= limit)
+        total, count = total + b * keep, count + keep
+    return torch.where(count > 0, total / count.clamp_min(1), torch.zeros_like(zmin))
+
+
+def downsample_mask(mask: torch.Tensor) -> torch.Tensor:
+    """(H, W) bool -> (H//2, W//2): dynamic where any pixel of the 2x2 block is."""
+    a, b, c, d = _blocks(mask)
+    return a | b | c | d
+
+
+def downsample_K(K: torch.Tensor) -> torch.Tensor:
+    """(3, 3) camera matrix of the 2x2-block-downsampled image: f/2, c' = (c + 0.5)/2 − 0.5."""
+    Kd = K.clone()
+    Kd[:2, :2] = K[:2, :2] / 2
+    Kd[:2, 2] = (K[:2, 2] + 0.5) / 2 - 0.5
+    return Kd
+
+
+def image_gradients(img: torch.Tensor) -> torch.Tensor:
+    """(H, W) -> (2, H, W) Scharr derivatives (∂/∂u, ∂/∂v) per pixel (kernel [3, 10, 3] ⊗ [−1, 0, 1] / 32)."""
+    x = F.pad(img[None, None], (1, 1, 1, 1), mode="replicate")[0, 0]
+    du = x[:, 2:] - x[:, :-2]  # (H + 2, W)
+    dv = x[2:] - x[:-2]  # (H, W + 2)
+    gu = (3 * du[:-2] + 10 * du[1:-1] + 3 * du[2:]) / 32
+    gv = (3 * dv[:, :-2] + 10 * dv[:, 1:-1] + 3 * dv[:, 2:]) / 32
+    return torch.stack([gu, gv])
+
+
+def max_depth_jump(z: torch.Tensor, f: float, coeffs: Coeffs = KINECT_SIGMA) -> torch.Tensor:
+    """Largest depth step (...) between neighbouring pixels on one surface at depth z (...).
+
+    3 σ_pair of sensor noise plus the step of a surface seen 75° off the viewing ray, z/f · tan 75°.
+    """
+    return 3.0 * math.sqrt(2.0) * kinect_depth_sigma(z, coeffs) + z / f * 3.73
+
+
+def vertex_normals(vertices: torch.Tensor, valid: torch.Tensor, f: float, coeffs: Coeffs = KINECT_SIGMA) -> torch.Tensor:
+    """Unit normals (3, H, W) facing the camera from central differences of a vertex map (3, H, W).
+
+    Zero where a 4-neighbour is invalid (``valid`` (H, W) bool) or lies across a depth discontinuity.
+    """
+    v = F.pad(vertices, (1, 1, 1, 1))
+    m = F.pad(valid, (1, 1, 1, 1))
+    dx, dy = v[:, 1:-1, 2:] - v[:, 1:-1, :-2], v[:, 2:, 1:-1] - v[:, :-2, 1:-1]
+    z = vertices[2]
+    jump = max_depth_jump(z, f, coeffs)
+    ok = valid.clone()
+    inner, lo, hi = slice(1, -1), slice(0, -2), slice(2, None)
+    for sl in ((inner, hi), (inner, lo), (hi, inner), (lo, inner)):  # right, left, down, up neighbours
+        ok &= m[sl] & ((v[2][sl] - z).abs() <= jump)
+    n = torch.stack([dx[1] * dy[2] - dx[2] * dy[1], dx[2] * dy[0] - dx[0] * dy[2], dx[0] * dy[1] - dx[1] * dy[0]])
+    # 1/|n| with the sign that makes n face the camera; 0 where undefined (norm(dim=0) is slow on CPU).
+    inv = torch.rsqrt((n * n).sum(0).clamp_min(1e-24))
+    inv = torch.where((n * vertices).sum(0) > 0, -inv, inv)
+    return n * torch.where(ok, inv, torch.zeros_like(inv))
+
+
+def _level(
+    K: torch.Tensor, intensity: torch.Tensor, depth: torch.Tensor, dynamic: torch.Tensor, depth_range: tuple[float, float], coeffs: Coeffs
+) -> PyramidLevel:
+    """One pyramid level from its K (3, 3), intensity, depth and dynamic mask (H, W)."""
+    usable = (depth >= depth_range[0]) & (depth <= depth_range[1]) & ~dynamic
+    depth = torch.where(usable, depth, torch.zeros_like(depth))
+    h, w = depth.shape
+    u = torch.arange(w, dtype=depth.dtype, device=depth.device)
+    v = torch.arange(h, dtype=depth.dtype, device=depth.device)[:, None]
+    vertices = torch.stack([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth, depth])  # (3, H, W)
+    normals = vertex_normals(vertices, usable, float(K[0, 0]), coeffs)
+    warp_image = torch.cat([intensity[None], image_gradients(intensity)])[None]
+    return PyramidLevel(K, intensity, warp_image, torch.cat([depth[None], vertices, normals]), usable)
+
+
+def build_pyramid(
+    rgb: torch.Tensor,
+    depth: torch.Tensor,
+    K: torch.Tensor,
+    levels: int = 3,
+    mask: torch.Tensor | None = None,
+    depth_range: tuple[float, float] = (0.2, 6.0),
+    depth_sigma: Coeffs = KINECT_SIGMA,
+) -> list[PyramidLevel]:
+    """RGB-D image pyramid, finest first.
+
+    Args:
+        rgb: (H, W, 3) in [0, 1]. depth: (H, W) metres, 0 = invalid. K: (3, 3).
+        levels: number of levels. mask: (H, W) bool, True = dynamic (excluded), or None.
+        depth_range: usable (min, max) depth in metres. depth_sigma: (a, b, z0) of :func:`kinect_depth_sigma`.
+    Returns:
+        ``levels`` levels; level l is (H / 2^l, W / 2^l) with K scaled by :func:`downsample_K`.
+    """
+    K = K.to(device=depth.device, dtype=depth.dtype)
+    intensity = rgb[..., 0] * 0.299 + rgb[..., 1] * 0.587 + rgb[..., 2] * 0.114
+    dynamic = torch.zeros_like(depth, dtype=torch.bool) if mask is None else mask.to(depth.device, torch.bool)
+    depth = torch.where(dynamic, torch.zeros_like(depth), depth)  # dynamic depth must not leak into coarser levels
+    out = [_level(K, intensity, depth, dynamic, depth_range, depth_sigma)]
+    for _ in range(1, levels):
+        K = downsample_K(K)
+        intensity = downsample_intensity(intensity)
+        depth = downsample_depth(depth, depth_sigma)
+        dynamic = downsample_mask(dynamic)
+        out.append(_level(K, intensity, depth, dynamic, depth_range, depth_sigma))
+    return out
