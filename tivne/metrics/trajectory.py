@@ -1,8 +1,8 @@
-"""Trajectory metrics as pure functions: Umeyama alignment and the absolute trajectory error (ATE).
+"""Trajectory metrics as pure functions: association, Umeyama alignment, ATE and RPE.
 
 Inputs are numpy arrays or torch tensors (any device); computation is in numpy float64 and the
 results are python floats / numpy arrays. Poses are camera-to-world (c2w) 4x4 matrices; distances in
-metres. Metric dictionaries use the flat snake_case keys of ``metrics.json``.
+metres, angles in degrees. Metric dictionaries use the flat snake_case keys of ``metrics.json``.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from typing import Literal
 
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 
 # The one timestamp association (TUM associate.py, |dt| <= max_diff) lives in the data layer.
 from data_modules.timestamps import associate_by_timestamp
@@ -25,6 +26,21 @@ def _as_np64(x: ArrayLike) -> np.ndarray:
     if isinstance(x, torch.Tensor):
         x = x.detach().cpu().numpy()
     return np.asarray(x, dtype=np.float64)
+
+
+# --------------------------------------------------------------------------------------------------
+# Association
+# --------------------------------------------------------------------------------------------------
+
+
+def associate_by_index(n_est: int, n_ref: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pair the i-th estimate with the i-th reference pose, for the first ``min(n_est, n_ref)``.
+
+    Returns:
+        idx_est (K,) and idx_ref (K,) int64, both ``arange(K)``.
+    """
+    k = min(int(n_est), int(n_ref))
+    return np.arange(k, dtype=np.int64), np.arange(k, dtype=np.int64)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -212,3 +228,73 @@ def ate_from_trajectories(
         raise ValueError(f"ate_from_trajectories: no timestamps match within max_diff={max_diff} s")
     res = absolute_trajectory_error(est[i_est], ref[i_ref], align=align)
     return replace(res, idx_est=i_est, idx_ref=i_ref)
+
+
+@dataclass(frozen=True)
+class RPEResult:
+    """Relative pose error over a fixed frame delta.
+
+    Attributes:
+        trans_rmse_m, trans_mean_m: statistics of the translation drift per delta, metres.
+        rot_rmse_deg, rot_mean_deg: statistics of the rotation drift per delta, degrees.
+        trans_errors: (N - delta,) metres; rot_errors: (N - delta,) degrees.
+        delta: frame delta.
+    """
+
+    trans_rmse_m: float
+    trans_mean_m: float
+    rot_rmse_deg: float
+    rot_mean_deg: float
+    trans_errors: np.ndarray
+    rot_errors: np.ndarray
+    delta: int
+
+    def as_metrics(self, prefix: str = "rpe") -> dict[str, float]:
+        """Flat keys ``{prefix}_trans_rmse_m``, ``_trans_mean_m``, ``_rot_rmse_deg``, ``_rot_mean_deg``."""
+        return {
+            f"{prefix}_trans_rmse_m": self.trans_rmse_m,
+            f"{prefix}_trans_mean_m": self.trans_mean_m,
+            f"{prefix}_rot_rmse_deg": self.rot_rmse_deg,
+            f"{prefix}_rot_mean_deg": self.rot_mean_deg,
+        }
+
+
+def relative_pose_error(est_poses: ArrayLike, ref_poses: ArrayLike, delta: int = 1) -> RPEResult:
+    """RPE of associated poses for consecutive pairs ``(i, i + delta)`` (TUM / evo definition).
+
+    ``E_i = (Q_i^-1 Q_{i+delta})^-1 (P_i^-1 P_{i+delta})`` with reference Q and estimate P; the
+    translation error is ``|trans(E_i)|`` and the rotation error the angle of ``rot(E_i)``. No alignment
+    is needed (RPE is invariant to a global rigid transform; not to scale). All overlapping pairs
+    ``i = 0 .. N - 1 - delta`` are used, as TUM's ``evaluate_rpe`` and evo with ``all_pairs=True``
+    (evo's default takes non-overlapping pairs only).
+
+    Args:
+        est_poses: (N, 4, 4) c2w; ref_poses: (N, 4, 4) c2w.
+        delta: frame delta, >= 1.
+    Returns:
+        :class:`RPEResult`.
+    Raises:
+        ValueError: shape mismatch or fewer than ``delta + 1`` poses.
+    """
+    est = _as_np64(est_poses)
+    ref = _as_np64(ref_poses)
+    _check_poses(est, "est_poses")
+    _check_poses(ref, "ref_poses")
+    if len(est) != len(ref):
+        raise ValueError(f"relative_pose_error: {len(est)} estimated but {len(ref)} reference poses")
+    if delta < 1 or len(est) <= delta:
+        raise ValueError(f"relative_pose_error: need more than delta={delta} poses, got {len(est)}")
+    rel_est = np.linalg.inv(est[:-delta]) @ est[delta:]
+    rel_ref = np.linalg.inv(ref[:-delta]) @ ref[delta:]
+    E = np.linalg.inv(rel_ref) @ rel_est
+    trans = np.linalg.norm(E[:, :3, 3], axis=1)
+    rot = np.degrees(Rotation.from_matrix(E[:, :3, :3]).magnitude())
+    return RPEResult(
+        trans_rmse_m=float(np.sqrt(np.mean(trans**2))),
+        trans_mean_m=float(np.mean(trans)),
+        rot_rmse_deg=float(np.sqrt(np.mean(rot**2))),
+        rot_mean_deg=float(np.mean(rot)),
+        trans_errors=trans,
+        rot_errors=rot,
+        delta=int(delta),
+    )

@@ -1,4 +1,4 @@
-"""Tests of tivne.metrics.trajectory: association, Umeyama, ATE (cross-checked with evo)."""
+"""Tests of tivne.metrics.trajectory: association, Umeyama, ATE / RPE (cross-checked with evo)."""
 
 from __future__ import annotations
 
@@ -52,6 +52,10 @@ class TestAssociation:
         from data_modules.timestamps import associate_by_timestamp
 
         assert M.associate_by_timestamp is associate_by_timestamp  # tested in tests/data_modules/test_timestamps.py
+
+    def test_by_index(self):
+        a, b = M.associate_by_index(5, 3)
+        assert a.tolist() == b.tolist() == [0, 1, 2]
 
 
 class TestUmeyama:
@@ -169,3 +173,40 @@ class TestAgainstEvo:
         assert abs(ours.scale - evo_scale) < 1e-9
         if align == "sim3":
             assert 1.5 < ours.scale < 3.0  # ~1 / 0.4, biased low by the position noise
+
+    def test_rpe_matches_evo(self):
+        pytest.importorskip("evo", reason="evo not installed (pip install 'tivne[eval]')")
+        from evo.core import metrics as evo_metrics
+        from evo.core.trajectory import PosePath3D
+
+        _, est, _, ref = noisy_pair(seed=9, scale=1.0)
+        ref = ref[: len(est)]  # RPE needs associated poses; any pairing works for the comparison
+        ours = M.relative_pose_error(est, ref, delta=3)
+        for relation, ours_rmse in [
+            (evo_metrics.PoseRelation.translation_part, ours.trans_rmse_m),
+            (evo_metrics.PoseRelation.rotation_angle_deg, ours.rot_rmse_deg),
+        ]:
+            # all_pairs=True: every (i, i + delta), as TUM's evaluate_rpe and ours (evo's default
+            # takes non-overlapping pairs 0-3, 3-6, ...).
+            rpe = evo_metrics.RPE(relation, delta=3, delta_unit=evo_metrics.Unit.frames, all_pairs=True)
+            rpe.process_data((PosePath3D(poses_se3=list(ref)), PosePath3D(poses_se3=list(est))))
+            assert abs(ours_rmse - rpe.get_statistic(evo_metrics.StatisticsType.rmse)) < 1e-6
+
+
+class TestRPE:
+    def test_zero_for_rigidly_moved_trajectory(self):
+        ref = random_walk_poses(15, seed=4)
+        est = apply_sim3_to_poses(similarity(rot(6), np.array([1.0, 2.0, 3.0]), 1.0), ref)
+        res = M.relative_pose_error(est, ref)
+        assert res.trans_rmse_m < 1e-10 and res.rot_rmse_deg < 1e-5 and len(res.trans_errors) == 14
+        assert set(res.as_metrics()) == {"rpe_trans_rmse_m", "rpe_trans_mean_m", "rpe_rot_rmse_deg", "rpe_rot_mean_deg"}
+
+    def test_known_drift(self):
+        ref = np.repeat(np.eye(4)[None], 5, 0)
+        est = ref.copy()
+        est[:, 0, 3] = 0.01 * np.arange(5)  # 1 cm drift per frame
+        est[:, :3, :3] = G.se3_exp(torch.tensor([[0, 0, 0, 0, 0, math.radians(2.0) * k] for k in range(5)], dtype=F64))[:, :3, :3].numpy()
+        res = M.relative_pose_error(est, ref, delta=1)
+        assert np.allclose(res.rot_errors, 2.0) and np.allclose(res.trans_errors, 0.01)
+        with pytest.raises(ValueError):
+            M.relative_pose_error(est, ref, delta=5)
