@@ -29,21 +29,6 @@ def _as_np64(x: ArrayLike) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------------
-# Association
-# --------------------------------------------------------------------------------------------------
-
-
-def associate_by_index(n_est: int, n_ref: int) -> tuple[np.ndarray, np.ndarray]:
-    """Pair the i-th estimate with the i-th reference pose, for the first ``min(n_est, n_ref)``.
-
-    Returns:
-        idx_est (K,) and idx_ref (K,) int64, both ``arange(K)``.
-    """
-    k = min(int(n_est), int(n_ref))
-    return np.arange(k, dtype=np.int64), np.arange(k, dtype=np.int64)
-
-
-# --------------------------------------------------------------------------------------------------
 # Alignment and trajectory errors
 # --------------------------------------------------------------------------------------------------
 

@@ -29,6 +29,7 @@ from tivne.geometry import invert_pose, project, se3_exp
 from tivne.slam.pyramid import KINECT_SIGMA, PyramidLevel, build_pyramid, kinect_depth_sigma
 from tivne.slam.robust import cauchy_weights, huber_weights, robust_scale, subsample
 
+
 @dataclass(frozen=True)
 class OdometryConfig:
     """Settings of :func:`track_pyramids` (noise-model based defaults, not tuned to one sequence).

@@ -53,10 +53,6 @@ class TestAssociation:
 
         assert M.associate_by_timestamp is associate_by_timestamp  # tested in tests/data_modules/test_timestamps.py
 
-    def test_by_index(self):
-        a, b = M.associate_by_index(5, 3)
-        assert a.tolist() == b.tolist() == [0, 1, 2]
-
 
 class TestUmeyama:
     @pytest.mark.parametrize("with_scale", [False, True])
