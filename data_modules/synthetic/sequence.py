@@ -261,6 +261,17 @@ class SyntheticSequence(SequenceDataset):
         return render_view(self.scene.room, self.placed(t), self._bank, self.camera_pose_at(t), self._rays,
                            (K.fx, K.fy, K.cx, K.cy), colour=colour)
 
+    def render_at(self, c2w: torch.Tensor, t: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Noise-free view of the scene at time ``t`` from any camera pose ``c2w`` (4, 4): rgb (H, W, 3)
+        float in [0, 1] on 8-bit levels, depth (H, W) float32 metres, labels (H, W) uint8 (0 = static,
+        k = ``object_names[k - 1]``)."""
+        K = self.intrinsics
+        view = render_view(self.scene.room, self.placed(t), self._bank, torch.as_tensor(c2w, dtype=torch.float64), self._rays,
+                           (K.fx, K.fy, K.cx, K.cy), colour=True)
+        labels = (view.prim - len(self.scene.statics)).clamp_min(0).to(torch.uint8)
+        rgb = (view.rgb.clamp(0, 1) * 255.0).round() / 255.0
+        return rgb.float(), view.depth.float(), labels
+
     def render_arrays(self, i: int, noise: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Render frame ``i`` (no cache): rgb (H, W, 3) uint8, depth (H, W) float32 metres (0 = no
         measurement), labels (H, W) uint8 (0 = static, k = ``object_names[k - 1]``).

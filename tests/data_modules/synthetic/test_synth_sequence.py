@@ -148,3 +148,11 @@ def test_hydra_configs(overrides, name, scene):
     if overrides == ["dataset=cube"]:
         assert ds.sensor.rgb_noise == 0.01 and ds.sensor.depth_noise and ds.seed == 0
     np.testing.assert_array_equal(ds.timestamps, [0.0, 1 / 30])
+
+
+def test_render_at_a_frames_pose_and_time_is_that_frames_clean_render():
+    ds = SyntheticSequence("crossing", num_frames=4, width=48, height=36, cache_dir=None)
+    frame = ds.render(2, noise=False)
+    rgb, depth, labels = ds.render_at(ds.camera_pose(2), float(ds.timestamps[2]))
+    assert torch.equal(depth, frame.depth) and torch.equal(labels > 0, frame.mask)
+    assert torch.allclose(rgb, frame.rgb, atol=1.5 / 255)

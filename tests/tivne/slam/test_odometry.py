@@ -6,8 +6,8 @@ import math
 
 import pytest
 import torch
-from data_modules.moving_cube import CUBE, MovingCubeSequence
 
+from data_modules.synthetic import SyntheticSequence
 from tivne.geometry import backproject, invert_pose, se3_exp
 from tivne.slam.odometry import OdometryConfig, normal_equations, rgbd_odometry
 from tivne.slam.pyramid import build_pyramid, downsample_depth, downsample_K, downsample_mask, image_gradients, vertex_normals
@@ -17,16 +17,15 @@ W, H = 160, 120
 
 
 @pytest.fixture(scope="module")
-def room() -> MovingCubeSequence:
-    """The procedural room, exact depth and noise-free (8-bit) colour."""
-    return MovingCubeSequence(num_frames=2, width=W, height=H, depth_noise=False, rgb_noise=0.0, cache_dir=None)
+def room() -> SyntheticSequence:
+    """The procedural room of the cube scene, exact depth and noise-free (8-bit) colour."""
+    return SyntheticSequence("cube", num_frames=2, width=W, height=H, depth_noise=False, rgb_noise=0.0, cache_dir=None)
 
 
-def view(seq: MovingCubeSequence, c2w: torch.Tensor, t: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def view(seq: SyntheticSequence, c2w: torch.Tensor, t: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """rgb (H, W, 3) quantised to 8 bits, depth (H, W) float32, cube mask (H, W) of the room seen from c2w at time t."""
-    hit = seq.raycast(c2w, t)
-    rgb = (seq.shade(hit["prim"], hit["local"], hit["normal"]).reshape(H, W, 3) * 255).round() / 255
-    return rgb, hit["depth"].reshape(H, W).float(), (hit["prim"] == CUBE).reshape(H, W)
+    rgb, depth, labels = seq.render_at(c2w, t)
+    return rgb, depth, labels > 0
 
 
 def motion(seed: int, trans_m: float, rot_deg: float) -> torch.Tensor:
@@ -67,7 +66,7 @@ def test_initial_guess_is_used(room):
     assert pose_error(res.T_ref_cur, dT)[0] < 1.0
 
 
-def close_up(seq: MovingCubeSequence, t0: float, t1: float, distance: float) -> torch.Tensor:
+def close_up(seq: SyntheticSequence, t0: float, t1: float, distance: float) -> torch.Tensor:
     """(4, 4) c2w looking at the moving cube's mean position over [t0, t1] from ``distance`` metres."""
     mid = (seq.object_poses(t0)["cube"][:3, 3] + seq.object_poses(t1)["cube"][:3, 3]) / 2
     pos = mid + torch.tensor([0.1, -distance, 0.3], dtype=torch.float64)
