@@ -13,8 +13,11 @@ import torch
 
 Depth = TypeVar("Depth", torch.Tensor, np.ndarray, float)
 
+# (a, b, z0) of σ(z) = a + b (z − z0)², metres: Kinect v1 (Nguyen, Izadi and Lovell 2012).
+KINECT_SIGMA: tuple[float, float, float] = (0.0012, 0.0019, 0.4)
 
-def kinect_depth_sigma(z: Depth) -> Depth:
+
+def kinect_depth_sigma(z: Depth, coeffs: tuple[float, float, float] = KINECT_SIGMA) -> Depth:
     """Axial (along-ray) depth noise of a Kinect-like structured-light sensor, in metres.
 
     σ(z) = 0.0012 + 0.0019 (z − 0.4)², the fit of C. V. Nguyen, S. Izadi and D. Lovell, "Modeling
@@ -23,7 +26,9 @@ def kinect_depth_sigma(z: Depth) -> Depth:
 
     Args:
         z: depth in metres, any shape (tensor, array or scalar).
+        coeffs: (a, b, z0) of σ(z) = a + b (z − z0)², for another sensor's fit.
     Returns:
         σ with the shape and type of ``z``.
     """
-    return 0.0012 + 0.0019 * (z - 0.4) ** 2
+    a, b, z0 = coeffs
+    return a + b * (z - z0) ** 2

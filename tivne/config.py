@@ -17,6 +17,8 @@ import typing
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from data_modules.sensor import KINECT_SIGMA
+
 
 class ConfigError(ValueError):
     """A setting outside its allowed values; ``str()`` is one line naming key, value and rule."""
@@ -213,8 +215,17 @@ class LossWeights(Settings):
 
 @dataclass(frozen=True)
 class TrackingConfig(Settings):
-    """iters: optimiser steps per frame; rays: pixels (one fixed set per frame, so the best-loss
-    iterate is comparable). motion_model: 'zero' (paper) or 'constant_velocity' initialisation.
+    """method: 'odometry+field' (RGB-D odometry against a reference keyframe, refined by the field
+    tracker), 'odometry' (the odometry alone) or 'field' (the paper's tracker alone); see
+    :mod:`tivne.slam.frontend`. reference: the odometry's reference frame -- 'keyframe' (every mapping
+    keyframe), 'frame' (the previous frame) or 'adaptive' (only when the overlap or inlier ratio with
+    the reference falls below reference_min_overlap / reference_min_inliers, which also apply to the
+    other two). Tracking loss: the odometry fails (and its wider-basin retry too), the field tracker
+    alone keeps less than min_inlier_ratio of its rays, or the pose lands more than max_jump_m /
+    max_jump_deg from the motion model's prediction; a lost frame is reported and never mapped.
+
+    The field tracker: iters optimiser steps per frame over ``rays`` pixels (one fixed set per frame,
+    so the best-loss iterate is comparable). motion_model: 'zero' (paper) or 'constant_velocity'.
     outlier_factor: rays with depth residual > factor x median are dropped (0 disables).
     exclude_dynamic: draw no tracking rays from masked pixels. query_time: 'last_mapped' renders the
     map at the latest time it was trained on (moving pixels become outliers), 'frame' at the frame's
@@ -223,6 +234,13 @@ class TrackingConfig(Settings):
     decays exponentially to this fraction over the iterations."""
 
     section: ClassVar[str] = "tracking"
+    method: str = setting("odometry+field", choices=("odometry+field", "odometry", "field"))
+    reference: str = setting("keyframe", choices=("keyframe", "frame", "adaptive"))
+    reference_min_overlap: float = setting(0.7, ge=0, le=1)
+    reference_min_inliers: float = setting(0.5, ge=0, le=1)
+    min_inlier_ratio: float = setting(0.3, ge=0, le=1)
+    max_jump_m: float = setting(0.3, gt=0)
+    max_jump_deg: float = setting(30.0, gt=0)
     iters: int = setting(30, ge=1)
     rays: int = setting(512, ge=1)
     lr_rot: float = setting(2e-3, gt=0)
@@ -234,6 +252,68 @@ class TrackingConfig(Settings):
     query_time: str = setting("last_mapped", choices=("last_mapped", "frame"))
     stratified: bool = False
     lr_final_factor: float = setting(0.1, gt=0, le=1)
+
+
+@dataclass(frozen=True)
+class OdometryConfig(Settings):
+    """Dense RGB-D odometry (:func:`tivne.slam.odometry.track_pyramids`; ``tracking.method=odometry``) (noise-model based defaults, not tuned to one sequence).
+
+    levels: pyramid levels (1 = full resolution only). max_iterations: Gauss–Newton iterations per
+    level. photometric / geometric: which residual terms enter. robust: "huber" (k 1.345) or
+    "cauchy" (k 2.3849) kernel on the normalised residuals. depth_sigma: (a, b, z0) of σ(z).
+    intensity_sigma_min: floor of the photometric scale (1/255, one 8-bit step). brightness_offset:
+    subtract the median photometric residual (a global exposure change). photometric_depth_noise: add
+    the current depth's noise, seen through the image gradient, to each photometric σ.
+    photometric_weight: an extra factor on the photometric information (1 = the noise scales alone
+    decide). geometric_scale: "data" (σ(z) shapes the per-pixel point-to-plane weights, the MAD of the
+    residuals sets the overall scale, at least depth_quantum metres, as for the photometric term) or
+    "model" (scale ≥ σ(z)). outlier_sigmas: a pair whose depth difference exceeds this many robust σ is
+    rejected (occlusion, another surface).
+    max_normal_angle_deg: reject point-to-plane pairs whose normals disagree more. min_depth, max_depth:
+    usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than
+    this many of its pixels (|w|·f + |v|·f/z̄, z̄ the median depth); stall_pixels: or by less than this
+    without shrinking. damping: Levenberg–Marquardt λ relative to diag(H). max_points: at most about
+    this many current pixels per level (every k-th pixel on both axes; 0 = all): past a few ten thousand
+    the estimate is limited by systematic errors, not by the count. inlier_sigmas: a usable pair is an inlier when
+    its depth difference is within this many σ_pair of the sensor model (absolute, so it measures the
+    alignment, not the adaptive scale). min_correspondences, min_overlap, min_inlier_ratio,
+    max_pose_std: thresholds of :attr:`OdometryResult.ok`.
+    """
+
+    section: ClassVar[str] = "odometry"
+    levels: int = setting(3, ge=1, le=6)
+    max_iterations: int = setting(20, ge=1)
+    photometric: bool = True
+    geometric: bool = True
+    robust: str = setting("huber", choices=("huber", "cauchy"))
+    depth_sigma: tuple[float, ...] = setting(list(KINECT_SIGMA), ge=0)
+    intensity_sigma_min: float = setting(1.0 / 255.0, gt=0)
+    brightness_offset: bool = True
+    photometric_depth_noise: bool = True
+    photometric_weight: float = setting(1.0, ge=0)
+    geometric_scale: str = setting("data", choices=("data", "model"))
+    depth_quantum: float = setting(0.0002, gt=0)
+    outlier_sigmas: float = setting(5.0, gt=0)
+    max_normal_angle_deg: float = setting(30.0, gt=0, le=90)
+    min_depth: float = setting(0.2, ge=0)
+    max_depth: float = setting(6.0, gt=0)
+    tol_pixels: float = setting(0.05, gt=0)
+    stall_pixels: float = setting(0.25, ge=0)
+    damping: float = setting(1e-4, ge=0)
+    max_points: int = setting(20000, ge=0)
+    inlier_sigmas: float = setting(3.0, gt=0)
+    min_correspondences: int = setting(64, ge=6)
+    min_overlap: float = setting(0.3, ge=0, le=1)
+    min_inlier_ratio: float = setting(0.3, ge=0, le=1)
+    max_pose_std: float = setting(0.01, gt=0)
+
+    def check(self) -> None:
+        if not (self.photometric or self.geometric):
+            raise ConfigError("odometry.photometric=false and odometry.geometric=false: enable at least one term")
+        if len(self.depth_sigma) != 3:
+            raise ConfigError(f"odometry.depth_sigma={list(self.depth_sigma)}: must be [a, b, z0] of sigma(z) = a + b (z - z0)^2")
+        if self.max_depth <= self.min_depth:
+            raise ConfigError(f"odometry.max_depth={self.max_depth}: must be > odometry.min_depth ({self.min_depth})")
 
 
 @dataclass(frozen=True)
@@ -356,7 +436,7 @@ class TrainerConfig(Settings):
 
 
 SECTIONS: tuple[type[Settings], ...] = (
-    RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, MappingConfig, KeyframeConfig,
+    RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, OdometryConfig, MappingConfig, KeyframeConfig,
     SamplerConfig, MeshConfig, OutputConfig, TrainerConfig,
 )
 

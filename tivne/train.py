@@ -28,6 +28,7 @@ from tivne.config import (
     LossWeights,
     MappingConfig,
     MeshConfig,
+    OdometryConfig,
     OutputConfig,
     RenderConfig,
     RuntimeConfig,
@@ -60,6 +61,7 @@ class TrainSettings:
     render: RenderConfig
     loss: LossWeights
     tracking: TrackingConfig
+    odometry: OdometryConfig
     mapping: MappingConfig
     keyframe: KeyframeConfig
     sampler: SamplerConfig
@@ -88,6 +90,7 @@ def build_system(
         render=s.render,
         loss=s.loss,
         tracking=s.tracking,
+        odometry=s.odometry,
         mapping=s.mapping,
         mesh=s.mesh,
         output=s.output,

@@ -26,71 +26,10 @@ import torch
 import torch.nn.functional as F
 
 from tivne.geometry import invert_pose, project, se3_exp
-from tivne.slam.pyramid import KINECT_SIGMA, PyramidLevel, build_pyramid, kinect_depth_sigma
+from data_modules.sensor import kinect_depth_sigma
+from tivne.config import OdometryConfig
+from tivne.slam.pyramid import PyramidLevel, build_pyramid
 from tivne.slam.robust import cauchy_weights, huber_weights, robust_scale, subsample
-
-
-@dataclass(frozen=True)
-class OdometryConfig:
-    """Settings of :func:`track_pyramids` (noise-model based defaults, not tuned to one sequence).
-
-    levels: pyramid levels (1 = full resolution only). max_iterations: Gauss–Newton iterations per
-    level. photometric / geometric: which residual terms enter. robust: "huber" (k 1.345) or
-    "cauchy" (k 2.3849) kernel on the normalised residuals. depth_sigma: (a, b, z0) of σ(z).
-    intensity_sigma_min: floor of the photometric scale (1/255, one 8-bit step). brightness_offset:
-    subtract the median photometric residual (a global exposure change). photometric_depth_noise: add
-    the current depth's noise, seen through the image gradient, to each photometric σ.
-    photometric_weight: an extra factor on the photometric information (1 = the noise scales alone
-    decide). geometric_scale: "data" (σ(z) shapes the per-pixel point-to-plane weights, the MAD of the
-    residuals sets the overall scale, at least depth_quantum metres, as for the photometric term) or
-    "model" (scale ≥ σ(z)). outlier_sigmas: a pair whose depth difference exceeds this many robust σ is
-    rejected (occlusion, another surface).
-    max_normal_angle_deg: reject point-to-plane pairs whose normals disagree more. min_depth, max_depth:
-    usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than
-    this many of its pixels (|w|·f + |v|·f/z̄, z̄ the median depth); stall_pixels: or by less than this
-    without shrinking. damping: Levenberg–Marquardt λ relative to diag(H). max_points: at most about
-    this many current pixels per level (every k-th pixel on both axes; 0 = all): past a few ten thousand
-    the estimate is limited by systematic errors, not by the count. inlier_sigmas: a usable pair is an inlier when
-    its depth difference is within this many σ_pair of the sensor model (absolute, so it measures the
-    alignment, not the adaptive scale). min_correspondences, min_overlap, min_inlier_ratio,
-    max_pose_std: thresholds of :attr:`OdometryResult.ok`.
-    """
-
-    levels: int = 3
-    max_iterations: int = 20
-    photometric: bool = True
-    geometric: bool = True
-    robust: str = "huber"
-    depth_sigma: tuple[float, float, float] = KINECT_SIGMA
-    intensity_sigma_min: float = 1.0 / 255.0
-    brightness_offset: bool = True
-    photometric_depth_noise: bool = True
-    photometric_weight: float = 1.0
-    geometric_scale: str = "data"
-    depth_quantum: float = 0.0002
-    outlier_sigmas: float = 5.0
-    max_normal_angle_deg: float = 30.0
-    min_depth: float = 0.2
-    max_depth: float = 6.0
-    tol_pixels: float = 0.05
-    stall_pixels: float = 0.25
-    damping: float = 1e-4
-    max_points: int = 20000
-    inlier_sigmas: float = 3.0
-    min_correspondences: int = 64
-    min_overlap: float = 0.3
-    min_inlier_ratio: float = 0.3
-    max_pose_std: float = 0.01
-
-    def __post_init__(self) -> None:
-        if not (self.photometric or self.geometric):
-            raise ValueError("odometry: enable at least one of photometric / geometric")
-        if self.geometric_scale not in ("data", "model"):
-            raise ValueError(f"odometry.geometric_scale must be 'data' or 'model', got {self.geometric_scale!r}")
-        if self.robust not in ("huber", "cauchy"):
-            raise ValueError(f"odometry.robust must be 'huber' or 'cauchy', got {self.robust!r}")
-        if self.levels < 1 or self.max_iterations < 1 or self.max_points < 0:
-            raise ValueError("odometry: levels and max_iterations must be >= 1, max_points >= 0")
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-KINECT_SIGMA = (0.0012, 0.0019, 0.4)  # σ(z) = a + b (z − z0)², metres (Nguyen et al. 2012)
+from data_modules.sensor import KINECT_SIGMA, kinect_depth_sigma
+
 Coeffs = tuple[float, float, float]
 
 
@@ -47,12 +48,6 @@ class PyramidLevel:
     def normals(self) -> torch.Tensor:
         """(H, W, 3) unit normals facing the camera, zero where undefined."""
         return self.geometry[4:7].permute(1, 2, 0)
-
-
-def kinect_depth_sigma(z: torch.Tensor, coeffs: Coeffs = KINECT_SIGMA) -> torch.Tensor:
-    """Axial depth noise σ(z) = a + b (z − z0)² [m] of a Kinect v1, z (...) -> (...)."""
-    a, b, z0 = coeffs
-    return a + b * (z - z0) ** 2
 
 
 def _blocks(x: torch.Tensor) -> tuple[torch.Tensor, ...]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import resource
+import sys
 import time
 from dataclasses import dataclass
 from dataclasses import field as dc_field
@@ -32,10 +33,11 @@ from tivne.render.rays import View
 from tivne.render.renderer import render_image
 from tivne.render.samplers import PixelSampler
 from tivne.slam.checkpoint import save_checkpoint
+from tivne.slam.frontend import Tracker
 from tivne.slam.keyframes import KeyframeDatabase, KeyframePolicy
 from tivne.slam.mapping import Mapper, final_pass
 from tivne.slam.outputs import RunDir, image_panels
-from tivne.slam.tracking import frozen, predict_pose, track_frame
+from tivne.slam.tracking import frozen
 from tivne.slam.trajectory import Trajectory
 
 
@@ -45,10 +47,23 @@ class Timers:
 
     track_s: float = 0.0
     track_iters: int = 0
+    track_frames: int = 0
     map_s: float = 0.0
     map_iters: int = 0
     refine_s: float = 0.0
     per_frame: list[float] = dc_field(default_factory=list)
+
+
+@dataclass
+class TrackingCounts:
+    """Frames whose pose is not a tracked one, for metrics.json: without_tracking (no usable static
+    depth, nothing to track on), lost (tracking ran and failed), recovered (the first attempt failed,
+    the wider retry succeeded)."""
+
+    without_tracking: int = 0
+    lost: int = 0
+    recovered: int = 0
+    warnings: int = 0
 
 
 class TivNeSLAM(L.LightningModule):
@@ -64,6 +79,7 @@ class TivNeSLAM(L.LightningModule):
         render: RenderConfig,
         loss: LossWeights,
         tracking: TrackingConfig,
+        odometry: OdometryConfig,
         mapping: MappingConfig,
         mesh: MeshConfig,
         output: OutputConfig,
@@ -83,6 +99,8 @@ class TivNeSLAM(L.LightningModule):
         self.mesh_cfg, self.output_cfg = mesh, output
         self.run = RunDir(run_dir)
         self.mapper = Mapper(self.field, mapping)
+        self.tracker = Tracker(tracking, odometry, render, loss)
+        self.counts = TrackingCounts()
         self.db = KeyframeDatabase(keyframes.cfg.every)
         self.trajectory = Trajectory()
         self.tracked: list[torch.Tensor] = []  # the last two absolute poses, for the motion model
@@ -113,21 +131,10 @@ class TivNeSLAM(L.LightningModule):
         tau = time_to_tau(frame.timestamp, self.t0, self.field.time_scale)
         # Post-tracking providers lend tracking a prediction (their previous mask) meanwhile.
         mask = self.masks.predict(frame) if self.masks.needs_tracked_pose else self.masks(frame, None)
-        pose, stats = self._track(k, tau, frame, mask)
-        if self.masks.needs_tracked_pose:
-            with frozen(self.field), torch.no_grad():
-                context = MaskContext(self.field, pose, self.K, tau, self.render_cfg, k, self.last_mapped_tau)
-                mask = self.masks(frame, context)
+        pose, stats, lost = self._track(k, tau, frame, mask)
         view = View(k, tau, frame.rgb, frame.depth, mask, pose)
-        self.masks.revise(self.db.views, view, self.K)  # what this frame shows about earlier keyframes
-        if k == 0:
-            self._allocate(view)
-        if self.db.should_insert(k):
-            self.db.add(view)
-        if k == 0 or k % self.mapping_cfg.every == 0:
-            stats.update(self._map(view, first=k == 0))
-            self.last_mapped_tau = tau
-        self._allocate(view)
+        if not lost:  # a frame whose pose is not known is never mapped
+            stats.update(self._integrate(k, view, frame, stats))
         self.trajectory.append(frame.timestamp, view.pose, len(self.db) - 1, self.db.views[-1].pose, frame.gt_pose)
         self.tracked = (self.tracked + [view.pose.detach()])[-2:]
         self.last_view = view
@@ -137,20 +144,56 @@ class TivNeSLAM(L.LightningModule):
         if self.output_cfg.save_every and (k + 1) % self.output_cfg.save_every == 0:
             self.write_trajectory()
 
-    def _track(self, k: int, tau: float, frame: Frame, mask: torch.Tensor | None) -> tuple[torch.Tensor, dict[str, float]]:
-        """The frame's c2w pose: the first camera defines the SLAM world frame; later ones are tracked."""
+    def _integrate(self, k: int, view: View, frame: Frame, stats: dict[str, float]) -> dict[str, float]:
+        """Everything after a successful track: the mask, keyframes, mapping, voxels, the odometry reference."""
+        if self.masks.needs_tracked_pose:
+            with frozen(self.field), torch.no_grad():
+                context = MaskContext(self.field, view.pose, self.K, view.tau, self.render_cfg, k, self.last_mapped_tau)
+                view.dynamic = self.masks(frame, context)
+        self.masks.revise(self.db.views, view, self.K)  # what this frame shows about earlier keyframes
         if k == 0:
-            return torch.eye(4, device=self.device), {}
-        init = predict_pose(self.tracked, self.tracking_cfg.motion_model)
+            self._allocate(view)
+        is_keyframe = self.db.should_insert(k)
+        if is_keyframe:
+            self.db.add(view)
+        out: dict[str, float] = {}
+        if k == 0 or k % self.mapping_cfg.every == 0:
+            out = self._map(view, first=k == 0)
+            self.last_mapped_tau = view.tau
+        self._allocate(view)
+        odo = {n[len("track/"):]: v for n, v in stats.items() if n.startswith("track/")}
+        out["track/new_reference"] = float(self.tracker.update_reference(view, self.K, odo, is_keyframe))
+        return out
+
+    def _track(self, k: int, tau: float, frame: Frame, mask: torch.Tensor | None) -> tuple[torch.Tensor, dict[str, float], bool]:
+        """The frame's c2w pose and whether tracking was lost: the first camera defines the SLAM world
+        frame; later ones are tracked (:class:`tivne.slam.frontend.Tracker`)."""
+        if k == 0:
+            return torch.eye(4, device=self.device), {}, False
+        usable = (frame.depth > 0) if mask is None else (frame.depth > 0) & ~mask
+        if int(usable.sum()) < self.tracking_cfg.rays:
+            self.counts.without_tracking += 1
+            self._warn(f"frame {k} (t={float(frame.timestamp):.3f}s): only {int(usable.sum())} static pixels with depth; not tracked, not mapped")
+            return self.tracked[-1].clone(), {"track/lost": 1.0}, True
         query_tau = self.last_mapped_tau if self.tracking_cfg.query_time == "last_mapped" else tau
         t = time.perf_counter()
-        pose, stats = track_frame(
-            self.field, View(k, query_tau, frame.rgb, frame.depth, mask, init), self.K, self.render_cfg,
-            self.loss_weights, self.tracking_cfg, self.generator,
-        )
+        result = self.tracker.track(self.field, View(k, query_tau, frame.rgb, frame.depth, mask, self.tracked[-1]), self.tracked, self.K, self.generator)
         self.timers.track_s += time.perf_counter() - t
-        self.timers.track_iters += self.tracking_cfg.iters
-        return pose, {f"track/{n}": v for n, v in stats.items()}
+        self.timers.track_iters += self.tracking_cfg.iters if self.tracking_cfg.method != "odometry" else 0
+        self.timers.track_frames += 1
+        self.counts.recovered += int(result.recovered and not result.lost)
+        if result.lost:
+            self.counts.lost += 1
+            self._warn(f"frame {k} (t={float(frame.timestamp):.3f}s): tracking lost ({format_stats(result.stats)}); pose from the motion model, not mapped")
+        return result.pose, {f"track/{n}": v for n, v in result.stats.items()}, result.lost
+
+    def _warn(self, message: str, limit: int = 20) -> None:
+        """A ``warning:`` line on stderr (the first ``limit`` of them; metrics.json counts all)."""
+        self.counts.warnings += 1
+        if self.counts.warnings <= limit:
+            print(f"warning: {message}", file=sys.stderr)
+        elif self.counts.warnings == limit + 1:
+            print("warning: more frames without tracking; see tracking_lost / frames_without_tracking in metrics.json", file=sys.stderr)
 
     def _map(self, view: View, first: bool) -> dict[str, float]:
         if first:
@@ -265,6 +308,7 @@ class TivNeSLAM(L.LightningModule):
             "wall_s": float(sum(per_frame)),
             "s_per_frame": float(sum(per_frame) / len(per_frame)) if per_frame else None,
             "s_per_frame_after_first": float(sum(per_frame[1:]) / (len(per_frame) - 1)) if len(per_frame) > 1 else None,
+            "track_ms_per_frame": 1000 * t.track_s / t.track_frames if t.track_frames else None,
             "track_ms_per_iter": 1000 * t.track_s / t.track_iters if t.track_iters else None,
             "map_ms_per_iter": 1000 * t.map_s / t.map_iters if t.map_iters else None,
             "final_refine_s": t.refine_s,
@@ -272,6 +316,9 @@ class TivNeSLAM(L.LightningModule):
             "voxels": self.field.grid.num_voxels,
             "embedding_rows": self.field.grid.num_corners,
             "keyframes": len(self.db),
+            "tracking_lost": self.counts.lost,
+            "frames_without_tracking": self.counts.without_tracking,
+            "tracking_recovered": self.counts.recovered,
             "checkpoint": RunDir.CHECKPOINT,
         }
         result = self.trajectory.ate(self.keyframe_poses())
@@ -293,3 +340,9 @@ class TivNeSLAM(L.LightningModule):
             save_mesh(mesh, self.run.mesh_path(ts))
             result[f"mesh_t{ts:.3f}_faces"] = int(len(mesh.faces))
         return result
+
+
+def format_stats(stats: dict[str, float]) -> str:
+    """The tracking signals of a frame, for its warning line."""
+    keys = ("odo_inlier_ratio", "odo_overlap", "field_inlier_ratio", "jump_m", "jump_deg")
+    return ", ".join(f"{k} {stats[k]:.3g}" for k in keys if k in stats)
