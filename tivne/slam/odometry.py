@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from tivne.geometry import invert_pose, project, se3_exp
+from tivne.geometry import invert_pose, project
 from tivne.slam.pyramid import KINECT_SIGMA, PyramidLevel, build_pyramid, kinect_depth_sigma
 from tivne.slam.robust import cauchy_weights, huber_weights, robust_scale, subsample
 
@@ -299,6 +299,27 @@ def _linearise(
     return _Linearisation(H, g, int(valid.sum()), int(usable.sum()), num_inliers, rms[0], rms[1])
 
 
+def se3_step(xi: torch.Tensor) -> torch.Tensor:
+    """:func:`tivne.geometry.se3_exp` of one twist (6,) = (v, w) -> (4, 4), in closed form (Rodrigues).
+
+    0.05 ms instead of kornia's 0.65 ms, which was 13 % of the tracking time at ~14 iterations per frame.
+    """
+    v, w = xi[:3], xi[3:]
+    theta2 = float(w @ w)
+    if theta2 < 1e-12:  # series of sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³
+        a, b, c = 1.0 - theta2 / 6, 0.5 - theta2 / 24, 1.0 / 6 - theta2 / 120
+    else:
+        th = math.sqrt(theta2)
+        a, b, c = math.sin(th) / th, (1 - math.cos(th)) / theta2, (th - math.sin(th)) / (theta2 * th)
+    W = torch.zeros(3, 3, dtype=xi.dtype, device=xi.device)
+    W[0, 1], W[0, 2], W[1, 2] = -w[2], w[1], -w[0]
+    W = W - W.T
+    I, W2 = torch.eye(3, dtype=xi.dtype, device=xi.device), W @ W
+    T = torch.eye(4, dtype=xi.dtype, device=xi.device)
+    T[:3, :3], T[:3, 3] = I + a * W + b * W2, (I + b * W + c * W2) @ v
+    return T
+
+
 def _solve(H: torch.Tensor, g: torch.Tensor, damping: float) -> torch.Tensor:
     """Levenberg–Marquardt step δ (6,) = −(H + λ diag H + ε)⁻¹ g (ε keeps an empty system solvable)."""
     eps = 1e-12 * (float(H.diagonal().sum()) + 1.0)
@@ -320,7 +341,7 @@ def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tens
         if lin.num_valid < cfg.min_correspondences:
             return T, it, False, lin
         delta = _solve(lin.H, lin.g, cfg.damping)
-        T = se3_exp(delta) @ T
+        T = se3_step(delta) @ T
         step = (float(delta[3:].norm()) + float(delta[:3].norm()) / z_mid) * f
         if step < cfg.tol_pixels or (step < cfg.stall_pixels and step > 0.5 * last):
             return T, it + 1, True, lin
