@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from tivne.geometry import invert_pose, project, se3_exp
 from data_modules.sensor import kinect_depth_sigma
 from tivne.config import OdometryConfig
+from tivne.geometry import invert_pose, project, se3_step
 from tivne.slam.pyramid import PyramidLevel, build_pyramid
 from tivne.slam.robust import cauchy_weights, huber_weights, robust_scale, subsample
 
@@ -260,7 +260,7 @@ def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tens
         if lin.num_valid < cfg.min_correspondences:
             return T, it, False, lin
         delta = _solve(lin.H, lin.g, cfg.damping)
-        T = se3_exp(delta) @ T
+        T = se3_step(delta) @ T
         step = (float(delta[3:].norm()) + float(delta[:3].norm()) / z_mid) * f
         if step < cfg.tol_pixels or (step < cfg.stall_pixels and step > 0.5 * last):
             return T, it + 1, True, lin

@@ -18,8 +18,11 @@ def cauchy_weights(e: torch.Tensor, k: float = 2.3849) -> torch.Tensor:
     return 1.0 / (1.0 + (e / k) ** 2)
 
 
-def subsample(r: torch.Tensor, mask: torch.Tensor | None, max_samples: int = 16384) -> torch.Tensor:
-    """The entries of r (N,) where mask (N,) bool, regularly thinned to about max_samples (for medians)."""
+def subsample(r: torch.Tensor, mask: torch.Tensor | None, max_samples: int = 4096) -> torch.Tensor:
+    """The entries of r (N,) where mask (N,) bool, regularly thinned to about max_samples (for medians).
+
+    A MAD from 4096 samples is within ~2 % of the full one; the medians were 14 % of the tracking time.
+    """
     step = r.numel() // max_samples + 1
     return r[::step] if mask is None else r[::step][mask[::step]]
 

@@ -21,6 +21,7 @@ from tivne.config import (
     LossWeights,
     MappingConfig,
     MeshConfig,
+    OdometryConfig,
     OutputConfig,
     RenderConfig,
     TrackingConfig,

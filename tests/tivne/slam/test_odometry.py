@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from data_modules.synthetic import SyntheticSequence
-from tivne.geometry import backproject, invert_pose, se3_exp
+from tivne.geometry import backproject, invert_pose, se3_exp, se3_step
 from tivne.slam.odometry import OdometryConfig, normal_equations, rgbd_odometry
 from tivne.slam.pyramid import build_pyramid, downsample_depth, downsample_K, downsample_mask, image_gradients, vertex_normals
 from tivne.slam.robust import cauchy_weights, huber_weights, robust_scale
@@ -183,6 +183,12 @@ def test_normal_equations_match_float64():
     A = rows.double()
     assert torch.allclose(H, (A[:6] * w.double()) @ A[:6].T, rtol=1e-5) and torch.allclose(g, A[:6] @ (w.double() * A[6]), rtol=1e-5)
     assert H.dtype == torch.float64
+
+
+def test_se3_step_matches_geometry():
+    for scale in (0.0, 1e-9, 1e-3, 0.5, 3.0):
+        xi = torch.randn(6, dtype=torch.float64, generator=torch.Generator().manual_seed(3)) * scale
+        assert torch.allclose(se3_step(xi), se3_exp(xi), atol=1e-12)
 
 
 def test_config_rejects_nonsense():
