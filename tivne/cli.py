@@ -2,7 +2,8 @@
 
 Bad input -- a missing or corrupt file, a setting outside its range, a missing mandatory value --
 ends a command with one line ``error: <where>: <problem>`` on stderr and exit status 2, never a
-traceback. :func:`one_line_errors` wraps a Hydra task function to do that; the exceptions it turns
+traceback; a run whose result is unusable (:class:`tivne.utils.RunFailed`, e.g. most frames not
+tracked) ends with one such line and exit status 3, after its results are written. :func:`one_line_errors` wraps a Hydra task function to do that; the exceptions it turns
 into such a line are :data:`BAD_INPUT` (also when Hydra's ``instantiate`` wrapped them).
 """
 
@@ -26,6 +27,7 @@ from tivne.config import (
     MeshEvalSettings,
     default_tree,
 )
+from tivne.utils import RunFailed
 
 EXIT_BAD_INPUT = 2
 BAD_INPUT: tuple[type[BaseException], ...] = (DatasetError, ConfigError, MissingMandatoryValue, FileNotFoundError, PermissionError)
@@ -74,6 +76,9 @@ def one_line_errors(task: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
             return task(*args, **kwargs)
+        except RunFailed as exc:
+            print(error_line(exc), file=sys.stderr)
+            sys.exit(exc.exit_code)
         except Exception as exc:  # noqa: BLE001 -- only bad input is turned into one line
             cause = bad_input_cause(exc)
             if cause is None:

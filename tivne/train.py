@@ -43,7 +43,7 @@ from tivne.render.samplers import PixelSampler
 from tivne.slam.keyframes import KeyframePolicy
 from tivne.slam.outputs import RunDir
 from tivne.slam.system import TivNeSLAM
-from tivne.utils import RunInterrupted, configure_runtime, interrupt_signals
+from tivne.utils import RunFailed, RunInterrupted, configure_runtime, interrupt_signals
 
 register_defaults()
 
@@ -136,7 +136,20 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
         if not system.last_metrics.get("complete"):  # a second signal now is the default action: exit at once
             system.save_partial(f"interrupted by {exc} after {len(system.trajectory)} frames")
         raise
+    check_tracked(metrics)
     return metrics
+
+
+def check_tracked(metrics: dict[str, Any]) -> None:
+    """Refuse a run where most frames have no tracked pose (their poses are guesses; a trajectory of
+    them must not pass for a result)."""
+    frames = int(metrics.get("frames") or 0)
+    untracked = int(metrics.get("tracking_lost") or 0) + int(metrics.get("frames_without_tracking") or 0)
+    if frames > 1 and untracked > (frames - 1) / 2:
+        raise RunFailed(
+            f"{untracked} of {frames - 1} frames could not be tracked ({metrics.get('frames_without_tracking')} without usable "
+            f"static depth, {metrics.get('tracking_lost')} lost); see the warnings above and metrics.json"
+        )
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")

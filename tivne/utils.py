@@ -76,3 +76,10 @@ def interrupt_signals(signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
+
+
+class RunFailed(RuntimeError):
+    """The run went through but its result is not usable (e.g. most frames could not be tracked);
+    the message is one line saying why. Commands exit with status 3 on it, after writing what they have."""
+
+    exit_code = 3

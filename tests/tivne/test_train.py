@@ -109,3 +109,28 @@ def test_final_evaluation_writes_4d_metrics(tmp_path):
     with pytest.raises(ConfigError, match="outside the recorded range"):  # before any frame is processed
         run(compose_cfg("mesh.times=[99]"), tmp_path / "refused")
     assert not (tmp_path / "refused").exists()
+
+
+def test_a_run_without_usable_depth_fails_with_one_line_not_an_identity_trajectory(tmp_path):
+    import cv2
+    import numpy as np
+
+    seq = tmp_path / "seq"
+    for sub in ("rgb", "depth"):
+        (seq / sub).mkdir(parents=True)
+    gen = np.random.default_rng(0)
+    for i in range(6):
+        cv2.imwrite(str(seq / "rgb" / f"{i:06d}.png"), gen.integers(0, 255, (60, 80, 3), dtype=np.uint8))
+        cv2.imwrite(str(seq / "depth" / f"{i:06d}.png"), np.zeros((60, 80), np.uint16))
+    (seq / "intrinsics.txt").write_text("60 60 39.5 29.5\n")
+    run_dir = tmp_path / "run"
+    out = subprocess.run(
+        [sys.executable, "-m", "tivne.train", "experiment=smoke", "dataset=folder", f"dataset.root={seq}", "masks=none", f"hydra.run.dir={run_dir}"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert out.returncode == 3, out.stderr[-2000:]
+    errors = [line for line in out.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "could not be tracked" in errors[0] and "Traceback" not in out.stderr
+    assert sum(line.startswith("warning: frame") for line in out.stderr.splitlines()) == 4
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert metrics["frames_without_tracking"] == 4  # written before the refusal

@@ -98,6 +98,7 @@ class Tracker:
         stats |= {"jump_m": jump_m, "jump_deg": jump_deg}
         if jump_m > self.cfg.max_jump_m or jump_deg > self.cfg.max_jump_deg:
             lost = True
+        recovered = recovered and not lost
         stats |= {"lost": float(lost), "recovered": float(recovered)}
         return TrackResult(predicted if lost else orthonormalize_pose(pose), lost, recovered, stats)
 
