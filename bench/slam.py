@@ -29,9 +29,14 @@ FIGURES = [
     ("frames", "frames", "{:.0f}"),
     ("s_per_frame", "s/frame (mean, incl. first-frame init)", "{:.3f}"),
     ("s_per_frame_after_first", "s/frame (after the first frame)", "{:.3f}"),
-    ("track_ms_per_iter", "tracking ms/iter", "{:.1f}"),
+    ("first_frame_s", "first frame s (map initialisation)", "{:.2f}"),
+    ("s_per_frame_first100", "s/frame, frames 2-101", "{:.3f}"),
+    ("s_per_frame_last100", "s/frame, last 100 frames", "{:.3f}"),
+    ("track_ms_per_frame", "tracking ms/frame", "{:.1f}"),
+    ("track_ms_per_iter", "tracking ms/iter (field tracker)", "{:.1f}"),
     ("map_ms_per_iter", "mapping ms/iter", "{:.1f}"),
     ("final_refine_s", "final mapping pass s", "{:.1f}"),
+    ("final_refine_share", "final pass share of the run", "{:.3f}"),
     ("peak_rss_mb", "peak RSS MB", "{:.0f}"),
     ("ate_rmse_m", "ATE RMSE cm", "{:.2f}", 100.0),
     ("ate_max_m", "ATE max cm", "{:.2f}", 100.0),
@@ -51,11 +56,28 @@ FIGURES = [
 ]
 
 
+def print_figures(metrics: dict, reference: dict | None) -> None:
+    """The figures, and with a reference run (same machine, ideally the same session) the ratio
+    new / reference of each (for times below 1 is faster)."""
+    for key, label, fmt, *scale in FIGURES:
+        value = metrics.get(key)
+        text = "n/a" if value is None else fmt.format(value * (scale[0] if scale else 1.0))
+        if reference is not None:
+            old = reference.get(key)
+            ratio = f"{value / old:.2f}x" if isinstance(value, (int, float)) and isinstance(old, (int, float)) and old else "n/a"
+            old_text = "n/a" if old is None else fmt.format(old * (scale[0] if scale else 1.0))
+            text = f"{text:>10}   ref {old_text:>10}   ratio {ratio}"
+        print(f"  {label:<42} {text}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default=None, help="run directory (default: a temporary one)")
     parser.add_argument("--profile", action="store_true", help="print the 25 most expensive functions")
+    parser.add_argument("--json", default=None, help="write the figures to this JSON file (a reference for --compare)")
+    parser.add_argument("--compare", default=None, help="a JSON file of an earlier run (--json) to print ratios against")
     args, overrides = parser.parse_known_args()
+    reference = json.loads(Path(args.compare).read_text()) if args.compare else None
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["trainer.progress_bar=false", *overrides])
     out = Path(args.out or tempfile.mkdtemp(prefix="tivne-bench-"))
@@ -65,12 +87,12 @@ def main() -> None:
     metrics = run(cfg, out)
     if profiler:
         profiler.disable()
-    print(f"\nbenchmark: {' '.join(overrides) or 'default'}  (run dir {out})")
-    for key, label, fmt, *scale in FIGURES:
-        value = metrics.get(key)
-        text = "n/a" if value is None else fmt.format(value * (scale[0] if scale else 1.0))
-        print(f"  {label:<40} {text}")
-    print(json.dumps({k: metrics.get(k) for k, *_ in FIGURES}))
+    print(f"\nbenchmark: {' '.join(overrides) or 'default'}  (run dir {out})" + (f"  vs {args.compare}" if reference else ""))
+    print_figures(metrics, reference)
+    figures = {k: metrics.get(k) for k, *_ in FIGURES}
+    print(json.dumps(figures))
+    if args.json:
+        Path(args.json).write_text(json.dumps(figures | {"overrides": overrides}, indent=2) + "\n")
     if profiler:
         buf = io.StringIO()
         pstats.Stats(profiler, stream=buf).sort_stats("tottime").print_stats(25)

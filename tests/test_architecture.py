@@ -16,7 +16,7 @@ MAX_FUNCTION_LINES = 80
 # Bottom-up. A module may import modules of its own layer entry (its package) or of lower entries.
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("data_modules",),
-    ("tivne", "tivne.config", "tivne.utils"),
+    ("tivne", "tivne.settings", "tivne.config", "tivne.utils"),
     ("tivne.geometry",),
     ("tivne.metrics",),
     ("tivne.field",),

@@ -15,7 +15,7 @@ class View:
     """A frame at the field's time ``tau`` with a camera-to-world pose: what tracking, mapping and
     image rendering need of it.
 
-    rgb (H, W, 3) in [0, 1]; depth (H, W) metres, 0 = invalid; dynamic (H, W) bool (True = moving
+    rgb (H, W, 3) float in [0, 1], or uint8 (stored keyframes); depth (H, W) metres, 0 = invalid; dynamic (H, W) bool (True = moving
     object) or None without a motion mask; pose (4, 4) c2w.
     """
 
@@ -29,6 +29,10 @@ class View:
     @property
     def width(self) -> int:
         return int(self.depth.shape[1])
+
+    def colour(self) -> torch.Tensor:
+        """(H, W, 3) float colour in [0, 1] (whichever way it is stored)."""
+        return self.rgb.float() / 255.0 if self.rgb.dtype == torch.uint8 else self.rgb
 
 
 @dataclass
@@ -86,7 +90,8 @@ def bundle_rays(views: Sequence[View], pixels: Sequence[torch.Tensor], poses: to
     uv, rgb, depth, dyn, tau, owner = [], [], [], [], [], []
     for v, (view, idx) in enumerate(zip(views, pixels)):
         uv.append(pixel_uv(idx, view.width))
-        rgb.append(view.rgb.reshape(-1, 3)[idx])
+        colour = view.rgb.reshape(-1, 3)[idx]
+        rgb.append(colour.float() / 255.0 if colour.dtype == torch.uint8 else colour)
         depth.append(view.depth.reshape(-1)[idx])
         dyn.append(view.dynamic.reshape(-1)[idx] if view.dynamic is not None else torch.zeros_like(idx, dtype=torch.bool))
         tau.append(torch.full_like(depth[-1], view.tau))

@@ -143,7 +143,7 @@ def render_image(
     Ks[:2] /= stride  # pixel (i*s) of the frame is pixel i here
     h, w = small.depth.shape
     pool = PixelPool.from_masks(small.depth > 0, None)
-    rgb = small.rgb.new_zeros(h * w, 3)
+    rgb = small.depth.new_zeros(h * w, 3)
     depth = small.depth.new_zeros(h * w)
     for start in range(0, pool.valid.numel(), cfg.chunk):
         idx = pool.valid[start : start + cfg.chunk]

@@ -106,7 +106,7 @@ class Tracker:
         self, view: View, last: torch.Tensor, predicted: torch.Tensor, K: torch.Tensor
     ) -> tuple[torch.Tensor, bool, bool, dict[str, float]]:
         ref = self.reference
-        self._current = frame_pyramid(view.rgb, view.depth, K, self.recovery, view.dynamic)
+        self._current = frame_pyramid(view.colour(), view.depth, K, self.recovery, view.dynamic)
         to_ref = invert_pose(ref.pose)
         result = track_pyramids(ref.pyramid, self._current, to_ref @ predicted.double(), self.odometry)
         recovered = False
@@ -134,7 +134,7 @@ class Tracker:
         )
         if not stale:
             return False
-        pyramid = self._current if self._current is not None else frame_pyramid(view.rgb, view.depth, K, self.recovery, view.dynamic)
+        pyramid = self._current if self._current is not None else frame_pyramid(view.colour(), view.depth, K, self.recovery, view.dynamic)
         self.reference = Reference(view.frame_id, pyramid, view.pose.detach().double())
         self._current = None
         return True

@@ -13,10 +13,17 @@ from tivne.render.samplers import sample_from_mask
 
 
 class KeyframeDatabase:
-    """Keyframes inserted every ``every`` frames (frame 0 always)."""
+    """Keyframes inserted every ``every`` frames (frame 0 always), at most ``max_stored`` of them.
 
-    def __init__(self, every: int = 5) -> None:
+    Memory stays bounded on long sequences: a keyframe keeps its colour as uint8 (the inputs are
+    8-bit anyway), and when the store is full the keyframe whose removal leaves the smallest gap in
+    time is dropped (never the first or the last), so the store keeps covering the whole sequence
+    evenly, ever more sparsely.
+    """
+
+    def __init__(self, every: int = 5, max_stored: int | None = None) -> None:
         self.every = int(every)
+        self.max_stored = max_stored
         self.views: list[View] = []
 
     def __len__(self) -> int:
@@ -25,9 +32,18 @@ class KeyframeDatabase:
     def should_insert(self, stream_index: int) -> bool:
         return stream_index % self.every == 0
 
-    def add(self, view: View) -> int:
+    def add(self, view: View) -> list[View]:
+        """Store ``view`` (the same object, its colour converted to uint8); returns the keyframes
+        dropped to make room (their poses will not change any more)."""
+        if view.rgb.dtype != torch.uint8:
+            view.rgb = (view.rgb.clamp(0, 1) * 255.0).round().to(torch.uint8)
         self.views.append(view)
-        return len(self.views) - 1
+        dropped = []
+        while self.max_stored is not None and len(self.views) > self.max_stored:
+            ids = [v.frame_id for v in self.views]
+            gaps = [ids[i + 1] - ids[i - 1] for i in range(1, len(ids) - 1)]  # the gap left without keyframe i
+            dropped.append(self.views.pop(1 + gaps.index(min(gaps))))
+        return dropped
 
     def poses(self) -> torch.Tensor:
         """(K, 4, 4) current keyframe poses."""

@@ -102,7 +102,7 @@ class TivNeSLAM(L.LightningModule):
         self.mapper = Mapper(self.field, mapping)
         self.tracker = Tracker(tracking, odometry, render, loss)
         self.counts = TrackingCounts()
-        self.db = KeyframeDatabase(keyframes.cfg.every)
+        self.db = KeyframeDatabase(keyframes.cfg.every, keyframes.cfg.max_stored)
         self.trajectory = Trajectory()
         self.tracked: list[torch.Tensor] = []  # the last two absolute poses, for the motion model
         self.t0: float | None = None
@@ -136,7 +136,7 @@ class TivNeSLAM(L.LightningModule):
         view = View(k, tau, frame.rgb, frame.depth, mask, pose)
         if not lost:  # a frame whose pose is not known is never mapped
             stats.update(self._integrate(k, view, frame, stats))
-        self.trajectory.append(frame.timestamp, view.pose, len(self.db) - 1, self.db.views[-1].pose, frame.gt_pose)
+        self.trajectory.append(frame.timestamp, view.pose, self.db.views[-1].frame_id, self.db.views[-1].pose, frame.gt_pose)
         self.tracked = (self.tracked + [view.pose.detach()])[-2:]
         self.last_view = view
         elapsed = time.perf_counter() - start
@@ -156,7 +156,8 @@ class TivNeSLAM(L.LightningModule):
             self._allocate(view)
         is_keyframe = self.db.should_insert(k)
         if is_keyframe:
-            self.db.add(view)
+            for old in self.db.add(view):
+                self.trajectory.freeze(old.frame_id, old.pose)
         out: dict[str, float] = {}
         if k == 0 or k % self.mapping_cfg.every == 0:
             out = self._map(view, first=k == 0)
@@ -248,11 +249,11 @@ class TivNeSLAM(L.LightningModule):
         """Observed | rendered colour and depth, and |depth error| at ``view.pose`` (uint8 images)."""
         with frozen(self.field):
             rgb, depth = render_image(self.field, view, self.K, self.render_cfg, stride)
-        return image_panels(rgb, depth, view.rgb[::stride, ::stride], view.depth[::stride, ::stride])
+        return image_panels(rgb, depth, view.colour()[::stride, ::stride], view.depth[::stride, ::stride])
 
     # ---- results --------------------------------------------------------------------------------
-    def keyframe_poses(self) -> list[torch.Tensor]:
-        return [v.pose for v in self.db.views]
+    def keyframe_poses(self) -> dict[int, torch.Tensor]:
+        return {v.frame_id: v.pose for v in self.db.views}
 
     def poses(self) -> torch.Tensor:
         """(N, 4, 4) float64 c2w poses of every processed frame, with keyframe refinements applied."""
@@ -309,10 +310,15 @@ class TivNeSLAM(L.LightningModule):
             "wall_s": float(sum(per_frame)),
             "s_per_frame": float(sum(per_frame) / len(per_frame)) if per_frame else None,
             "s_per_frame_after_first": float(sum(per_frame[1:]) / (len(per_frame) - 1)) if len(per_frame) > 1 else None,
+            "first_frame_s": float(per_frame[0]) if per_frame else None,
+            # flat cost over long sequences: the first and the last 100 frames after the first one
+            "s_per_frame_first100": mean_or_none(per_frame[1:101]),
+            "s_per_frame_last100": mean_or_none(per_frame[1:][-100:]),
             "track_ms_per_frame": 1000 * t.track_s / t.track_frames if t.track_frames else None,
             "track_ms_per_iter": 1000 * t.track_s / t.track_iters if t.track_iters else None,
             "map_ms_per_iter": 1000 * t.map_s / t.map_iters if t.map_iters else None,
             "final_refine_s": t.refine_s,
+            "final_refine_share": t.refine_s / (sum(per_frame) + t.refine_s) if per_frame else None,
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "voxels": self.field.grid.num_voxels,
             "embedding_rows": self.field.grid.num_corners,
@@ -347,3 +353,7 @@ def format_stats(stats: dict[str, float]) -> str:
     """The tracking signals of a frame, for its warning line."""
     keys = ("odo_inlier_ratio", "odo_overlap", "field_inlier_ratio", "jump_m", "jump_deg")
     return ", ".join(f"{k} {stats[k]:.3g}" for k in keys if k in stats)
+
+
+def mean_or_none(values: list[float]) -> float | None:
+    return float(sum(values) / len(values)) if values else None

@@ -13,11 +13,12 @@ from tivne.metrics.trajectory import ATEResult, absolute_trajectory_error
 
 @dataclass
 class FrameRecord:
-    """Where a processed frame's pose lives: ``keyframe`` (an index into the keyframe list) and the
-    (4, 4) pose relative to it; ``gt_pose`` (4, 4) c2w or None."""
+    """Where a processed frame's pose lives: relative to the keyframe with frame id ``keyframe``
+    ((4, 4) ``relative``), or absolute (``keyframe`` None) once that keyframe's pose is final;
+    ``gt_pose`` (4, 4) c2w or None."""
 
     timestamp: float
-    keyframe: int
+    keyframe: int | None
     relative: torch.Tensor
     gt_pose: torch.Tensor | None
 
@@ -32,20 +33,31 @@ class Trajectory:
         return len(self.records)
 
     def append(self, timestamp: float, pose: torch.Tensor, keyframe: int, keyframe_pose: torch.Tensor, gt_pose: torch.Tensor | None) -> None:
-        """Record a frame's (4, 4) c2w ``pose`` relative to keyframe ``keyframe`` (at ``keyframe_pose``)."""
+        """Record a frame's (4, 4) c2w ``pose`` relative to the keyframe with frame id ``keyframe``
+        (at ``keyframe_pose``)."""
         rel = orthonormalize_pose(invert_pose(keyframe_pose) @ pose)
         self.records.append(FrameRecord(float(timestamp), int(keyframe), rel.detach(), gt_pose))
 
-    def poses(self, keyframe_poses: list[torch.Tensor]) -> torch.Tensor:
-        """(N, 4, 4) float64 c2w poses of every frame, with the keyframes' current poses applied."""
+    def freeze(self, keyframe: int, keyframe_pose: torch.Tensor) -> None:
+        """The keyframe with frame id ``keyframe`` will not move any more (it left the keyframe
+        store): its frames' poses become absolute."""
+        for r in self.records:
+            if r.keyframe == keyframe:
+                r.relative, r.keyframe = (keyframe_pose @ r.relative).detach(), None
+
+    def poses(self, keyframe_poses: dict[int, torch.Tensor]) -> torch.Tensor:
+        """(N, 4, 4) float64 c2w poses of every frame, with the keyframes' current poses
+        (``{frame id: (4, 4) pose}``) applied."""
         if not self.records:
             return torch.zeros(0, 4, 4, dtype=torch.float64)
-        return torch.stack([keyframe_poses[r.keyframe] @ r.relative for r in self.records]).detach().cpu().double()
+        return torch.stack(
+            [r.relative if r.keyframe is None else keyframe_poses[r.keyframe] @ r.relative for r in self.records]
+        ).detach().cpu().double()
 
     def timestamps(self) -> list[float]:
         return [r.timestamp for r in self.records]
 
-    def ate(self, keyframe_poses: list[torch.Tensor]) -> ATEResult | None:
+    def ate(self, keyframe_poses: dict[int, torch.Tensor]) -> ATEResult | None:
         """SE(3)-aligned ATE over the frames that have a GT pose; None with fewer than 3 of them."""
         keep = [i for i, r in enumerate(self.records) if r.gt_pose is not None]
         if len(keep) < 3:

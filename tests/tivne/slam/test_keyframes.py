@@ -64,12 +64,26 @@ def test_database_insertion_every_n():
     inserted = [k for k in range(10) if db.should_insert(k)]
     assert inserted == [0, 3, 6, 9]
     for k in inserted:
-        assert db.add(view(k, shifted(0.1 * k))) == len(db) - 1
+        assert db.add(view(k, shifted(0.1 * k))) == []  # nothing dropped: no limit
     assert len(db) == 4 and db.frame_ids() == [0, 3, 6, 9]
     assert db.poses().shape == (4, 4, 4) and float(db.poses()[2, 0, 3]) == pytest.approx(0.6)
     assert KeyframeDatabase(every=1).should_insert(7)
     with pytest.raises(ValueError, match="every"):
         KeyframeConfig(every=0)
+
+
+def test_store_is_bounded_by_thinning_and_keeps_first_and_last():
+    db = KeyframeDatabase(every=1, max_stored=5)
+    dropped = []
+    for k in range(12):
+        v = view(k, shifted(0.1 * k))
+        v.rgb = torch.full_like(v.rgb, 0.5)
+        dropped += db.add(v)
+        assert len(db) <= 5 and db.views[-1].frame_id == k and db.views[0].frame_id == 0
+        assert db.views[-1].rgb.dtype == torch.uint8 and int(db.views[-1].rgb[0, 0, 0]) == 128
+    kept = db.frame_ids()
+    assert sorted(kept + [v.frame_id for v in dropped]) == list(range(12))  # every keyframe is kept or handed back
+    assert kept == sorted(kept) and max(b - a for a, b in zip(kept, kept[1:])) <= 4  # still spread over the sequence
 
 
 def overlap_db() -> KeyframeDatabase:
