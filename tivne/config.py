@@ -203,9 +203,10 @@ class MappingConfig(Settings):
     """iters: steps per mapping round; first_iters: steps on the first frame alone. rays per step,
     current_share of them from the current frame, the rest split over the picked keyframes. every:
     map every n-th frame. optimize_poses: refine the window's poses (never the first frame's; on, 20
-    Adam steps per round added noise here: 2.6 vs 1.0 cm peak error over 40 frames). final_iters:
-    steps of a last pass over the whole keyframe set after the sequence (windows of final_window
-    keyframes, poses fixed): the online window rarely revisits early and middle times; 0 = off."""
+    Adam steps per round added noise here: 2.6 vs 1.0 cm peak error over 40 frames). The final pass:
+    after the sequence, steps over the whole keyframe set (windows of final_window keyframes, poses
+    fixed), because the online window rarely revisits early and middle times: final_share of the
+    steps mapping took online, at most final_iters (so it stays a small part of the run; 0 = off)."""
 
     section: ClassVar[str] = "mapping"
     iters: int = setting(20, ge=1)
@@ -218,6 +219,7 @@ class MappingConfig(Settings):
     optimize_poses: bool = False
     every: int = setting(1, ge=1)
     final_iters: int = setting(300, ge=0)
+    final_share: float = setting(0.1, ge=0)
     final_window: int = setting(8, ge=1)
 
 

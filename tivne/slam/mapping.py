@@ -27,6 +27,7 @@ class Mapper:
             [{"params": [field.grid.embeddings], "lr": cfg.lr_embeddings}, {"params": decoder, "lr": cfg.lr_decoder}]
         )
         field.grid.grow_callbacks.append(self._pad_embedding_state)
+        self.steps = 0  # optimiser steps run so far (the final pass's budget is a share of them)
 
     def _pad_embedding_state(self, old_rows: int, new_rows: int) -> None:
         """Keep Adam's moments aligned with E after the grid grows (new rows start from zero moments)."""
@@ -66,6 +67,7 @@ class Mapper:
         counts = [n_cur] + [n_other] * (len(views) - 1)
         terms: dict[str, torch.Tensor] = {}
         skipped = 0
+        self.steps += iters
         for _ in range(iters):
             poses = base @ se3_exp(pose_delta * movable) if pose_opt is not None else base
             pixels = [sampler(pool, n, generator) for pool, n in zip(pools, counts)]
@@ -102,21 +104,23 @@ def final_pass(
 ) -> dict[str, float]:
     """The last pass over the whole sequence (Co-SLAM's final global BA, poses fixed).
 
-    ``mapping.final_iters`` steps in rounds of ``mapping.iters``, each over a window of
-    ``mapping.final_window`` views drawn without replacement from a shuffled cycle, so every time is
-    revisited about equally often. Returns the last round's loss terms.
+    ``mapping.final_share`` of the steps mapping ran so far, at most ``mapping.final_iters``, in
+    rounds of ``mapping.iters``, each over a window of ``mapping.final_window`` views drawn without
+    replacement from a shuffled cycle, so every time is revisited about equally often. Returns the
+    last round's loss terms.
     """
     cfg = mapper.cfg
-    if cfg.final_iters <= 0 or not views:
+    budget = min(cfg.final_iters, int(round(cfg.final_share * mapper.steps)))
+    if budget <= 0 or not views:
         return {}
     window = max(1, min(cfg.final_window, len(views)))
     order: list[int] = []
     done, terms = 0, {}
-    while done < cfg.final_iters:
+    while done < budget:
         if len(order) < window:  # next cycle; the last cycle's leftovers go first, no repeats in a window
             order += [i for i in torch.randperm(len(views), generator=generator).tolist() if i not in order]
         picked, order = order[:window], order[window:]
-        iters = max(1, min(cfg.iters, cfg.final_iters - done))
+        iters = max(1, min(cfg.iters, budget - done))
         _, terms = mapper.run(
             [views[i] for i in picked], [True] * window, iters, K, sampler, render, weights, generator,
             current_share=1.0 / window,

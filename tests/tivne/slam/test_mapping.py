@@ -119,6 +119,7 @@ def test_final_pass_revisits_every_view_in_windows_and_never_moves_poses(frames)
     v0, v1, K, f0 = frames
     field = make_field(f0, K)
     mapper = Mapper(field, MappingConfig(rays=128, iters=2, final_iters=7, final_window=1))
+    mapper.steps = 1000  # as if mapping had run 1000 steps online: 10 % of them is over the cap of 7
     seen: list[int] = []
     run = mapper.run
 
@@ -132,3 +133,8 @@ def test_final_pass_revisits_every_view_in_windows_and_never_moves_poses(frames)
     assert len(seen) == 4 and sorted(seen[:2]) == [0, 1] and sorted(seen[2:]) == [0, 1]  # 2+2+2+1 steps
     assert "total" in terms
     assert final_pass(Mapper(field, MappingConfig(final_iters=0)), [v0], K, PixelSampler(), RenderConfig(), LossWeights()) == {}
+    # the budget is final_share of the online steps: 30 steps online -> 3 steps
+    seen.clear()
+    mapper.steps = 30
+    final_pass(mapper, [v0, v1], K, PixelSampler(), RenderConfig(), LossWeights(), torch.Generator().manual_seed(0))
+    assert len(seen) == 2  # rounds of 2 + 1 steps

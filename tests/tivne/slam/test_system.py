@@ -104,7 +104,7 @@ def test_final_pass_cycles_through_every_keyframe_with_fixed_poses(processed, mo
         return real_run(views, fixed, iters, *args, **kwargs)
 
     monkeypatch.setattr(system.mapper, "run", recording_run)
-    monkeypatch.setattr(system.mapper, "cfg", dataclasses.replace(system.mapping_cfg, iters=3, final_iters=8, final_window=2))
+    monkeypatch.setattr(system.mapper, "cfg", dataclasses.replace(system.mapping_cfg, iters=3, final_iters=8, final_share=10.0, final_window=2))
     poses = [v.pose.clone() for v in system.db.views]
     args = (system.K, system.sampler, system.render_cfg, system.loss_weights, system.generator)
     terms = final_pass(system.mapper, list(system.db.views), *args)
