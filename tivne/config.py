@@ -117,7 +117,7 @@ class TrackingConfig(Settings):
 
     section: ClassVar[str] = "tracking"
     method: str = setting("odometry", choices=("odometry", "odometry+field", "field"))
-    reference: str = setting("keyframe", choices=("keyframe", "frame", "adaptive"))
+    reference: str = setting("adaptive", choices=("adaptive", "keyframe", "frame"))
     reference_min_overlap: float = setting(0.7, ge=0, le=1)
     reference_min_inliers: float = setting(0.5, ge=0, le=1)
     min_inlier_ratio: float = setting(0.3, ge=0, le=1)
