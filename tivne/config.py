@@ -211,13 +211,13 @@ class MappingConfig(Settings):
     section: ClassVar[str] = "mapping"
     iters: int = setting(20, ge=1)
     first_iters: int = setting(200, ge=0)
-    rays: int = setting(1024, ge=1)
+    rays: int = setting(512, ge=1)
     current_share: float = setting(0.5, gt=0, le=1)
     lr_embeddings: float = setting(1e-2, gt=0)
     lr_decoder: float = setting(5e-3, gt=0)
     lr_pose: float = setting(5e-4, gt=0)
     optimize_poses: bool = False
-    every: int = setting(1, ge=1)
+    every: int = setting(2, ge=1)
     final_iters: int = setting(300, ge=0)
     final_share: float = setting(0.1, ge=0)
     final_window: int = setting(8, ge=1)

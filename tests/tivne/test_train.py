@@ -87,10 +87,13 @@ def test_bad_dataset_value_is_one_error_line(tmp_path):
     assert "Traceback" not in out.stderr
 
 
-def test_fast_preset_maps_every_other_frame(tmp_path):
+def test_presets_compose(tmp_path):
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=["experiment=fast"])
-    assert cfg.tracking.iters == 20 and cfg.mapping.every == 2 and cfg.mapping.iters == 20
+        default = compose("config")
+        fast, quality, paper = (compose("config", overrides=[f"experiment={e}"]) for e in ("fast", "quality", "paper"))
+    assert default.mapping.every == 2 and default.tracking.method == "odometry" and default.mapping.rays == 512
+    assert fast.mapping.every == 3 and quality.mapping.every == 1 and quality.mapping.rays == 1024
+    assert paper.tracking.method == "field" and paper.mapping.every == 1 and paper.tracking.iters == 30
     smoke = compose_cfg("mapping.every=2", "data.max_frames=5", "masks=geometric")
     metrics = run(smoke, tmp_path)
     assert metrics["frames"] == 5 and metrics["map_ms_per_iter"] > 0

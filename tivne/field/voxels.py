@@ -23,10 +23,14 @@ class GridCapacityError(RuntimeError):
     """Raised when allocation would exceed the grid's hard cap on embedding rows."""
 
 
-def pack_coords(coords: torch.Tensor) -> torch.Tensor:
-    """(..., 3) int64 voxel coordinates -> (...) int64 keys (order-preserving per axis, x major)."""
+def pack_coords(coords: torch.Tensor, checked: bool = True) -> torch.Tensor:
+    """(..., 3) int64 voxel coordinates -> (...) int64 keys (order-preserving per axis, x major).
+
+    ``checked=False`` skips the range check, for callers that already masked out-of-range points
+    (the check costs a device sync per call, and lookups run every optimiser step).
+    """
     c = coords + _OFFSET
-    if (c < 0).any() or (c > _MASK).any():
+    if checked and ((c < 0).any() or (c > _MASK).any()):
         raise ValueError(f"voxel coordinate out of the hashable range +-{_OFFSET}")
     return (c[..., 0] << (2 * _BITS)) | (c[..., 1] << _BITS) | c[..., 2]
 
@@ -210,8 +214,8 @@ class SparseVoxelGrid(nn.Module):
         """(..., 3) world points -> voxel keys (...) and in_range (...) bool; points outside the
         hashable range (or non-finite) get key 0 and in_range False -- they are simply not in the map."""
         base = torch.floor(points / self.voxel_size)
-        in_range = torch.isfinite(base).all(-1) & (base.abs() < _OFFSET - 1).all(-1)
-        return pack_coords(torch.where(in_range[..., None], base, torch.zeros_like(base)).long()), in_range
+        in_range = (base.abs() < _OFFSET - 1).all(-1)  # False for NaN and inf too
+        return pack_coords(torch.where(in_range[..., None], base, torch.zeros_like(base)).long(), checked=False), in_range
 
     def contains(self, points: torch.Tensor, min_hits: int = 0) -> torch.Tensor:
         """(..., 3) world points -> (...) bool, True inside an allocated voxel (False for NaN/inf/huge).
@@ -251,8 +255,8 @@ class SparseVoxelGrid(nn.Module):
         g = points / self.voxel_size
         base = torch.floor(g.detach())
         # Points outside the hashable range (or non-finite) are simply not in the map.
-        in_range = torch.isfinite(base).all(-1) & (base.abs() < _OFFSET - 1).all(-1)
-        keys = pack_coords(torch.where(in_range[:, None], base, torch.zeros_like(base)).long())
+        in_range = (base.abs() < _OFFSET - 1).all(-1)  # False for NaN and inf too
+        keys = pack_coords(torch.where(in_range[:, None], base, torch.zeros_like(base)).long(), checked=False)
         pos, valid = sorted_lookup(self.voxel_keys, keys)
         valid &= in_range
         rows = self.voxel_corner_rows[pos[valid]]  # (Pv, 8)

@@ -23,8 +23,9 @@ class Mapper:
         self.field = field
         self.cfg = cfg
         decoder = [p for n, p in field.named_parameters() if not n.startswith("grid.")]
+        # foreach: one kernel per update for the ~20 small MLP tensors instead of a Python loop over them
         self.optimizer = torch.optim.Adam(
-            [{"params": [field.grid.embeddings], "lr": cfg.lr_embeddings}, {"params": decoder, "lr": cfg.lr_decoder}]
+            [{"params": [field.grid.embeddings], "lr": cfg.lr_embeddings}, {"params": decoder, "lr": cfg.lr_decoder}], foreach=True
         )
         field.grid.grow_callbacks.append(self._pad_embedding_state)
         self.steps = 0  # optimiser steps run so far (the final pass's budget is a share of them)
@@ -80,7 +81,7 @@ class Mapper:
             if pose_opt is not None:
                 pose_opt.zero_grad(set_to_none=True)
             loss.backward()
-            if not all(torch.isfinite(p.grad).all() for g in self.optimizer.param_groups for p in g["params"] if p.grad is not None):
+            if not grads_finite(self.optimizer):
                 skipped += 1
                 continue
             self.optimizer.step()
@@ -91,6 +92,12 @@ class Mapper:
         stats = {k: float(v) for k, v in terms.items()}
         stats["skipped_steps"] = float(skipped)
         return orthonormalize_pose(final.detach()), stats
+
+
+def grads_finite(optimizer: torch.optim.Optimizer) -> bool:
+    """Whether every gradient the optimiser would apply is finite (one fused norm, one sync)."""
+    grads = [p.grad for g in optimizer.param_groups for p in g["params"] if p.grad is not None]
+    return not grads or bool(torch.isfinite(torch.nn.utils.get_total_norm(grads)))
 
 
 def final_pass(
