@@ -34,6 +34,7 @@ from tivne.config import (
     MeshConfig,
     MeshEvalSettings,
     RenderConfig,
+    ReportConfig,
     default_tree,
 )
 from tivne.utils import RunFailed
@@ -49,14 +50,15 @@ class JobFailed(Exception):
 
 def register_defaults() -> None:
     """Make the defaults of :mod:`tivne.config` available to the YAML files in ``conf/`` as the
-    nodes ``tivne_defaults`` (every SLAM section), ``tivne_mesh`` (``mesh``) and ``tivne_evaluate``
-    (``mesh`` + ``settings``), and register the resolver
+    nodes ``tivne_defaults`` (every SLAM section), ``tivne_mesh`` (``mesh``), ``tivne_evaluate``
+    (``mesh`` + ``settings``) and ``tivne_report`` (``report``), and register the resolver
     ``${tivne.threads_per_job:}`` (:func:`threads_per_job`). Untyped on purpose: values are checked
     by the dataclasses, which give one-line errors, rather than by OmegaConf."""
     store = ConfigStore.instance()
     store.store(name="tivne_defaults", node=default_tree(SECTIONS))
     store.store(name="tivne_mesh", node=default_tree((MeshConfig,)))
     store.store(name="tivne_evaluate", node=default_tree((MeshConfig, MeshEvalSettings)))
+    store.store(name="tivne_report", node=default_tree((ReportConfig,)))
     if not OmegaConf.has_resolver(THREADS_RESOLVER):
         OmegaConf.register_new_resolver(THREADS_RESOLVER, lambda: threads_per_job(current_launcher(), usable_cores()))
 

@@ -342,6 +342,20 @@ class ObjectiveConfig(Settings):
             raise ConfigError("objective.metric=weighted: every weight is 0; give at least one term a weight > 0")
 
 
+@dataclass(frozen=True)
+class ReportConfig(Settings):
+    """``python -m tivne.report``: frames: how many processed frames (evenly spaced) the render / GT /
+    depth-error contact sheet re-renders from the checkpoint (0 = none); render_stride: their pixel
+    step; mesh_width: pixels across each mesh snapshot (two viewpoints per mesh time); mesh_faces:
+    at most this many faces are rasterised per snapshot (the rest are dropped evenly, for speed)."""
+
+    section: ClassVar[str] = "report"
+    frames: int = setting(4, ge=0)
+    render_stride: int = setting(2, ge=1)
+    mesh_width: int = setting(480, ge=32)
+    mesh_faces: int = setting(400_000, ge=1)
+
+
 SECTIONS: tuple[type[Settings], ...] = (
     RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, OdometryConfig, MappingConfig, KeyframeConfig,
     SamplerConfig, MeshConfig, OutputConfig, TrainerConfig, ObjectiveConfig,
