@@ -26,7 +26,7 @@ from tivne.slam.outputs import RunDir
 # The metrics every table shows (a column only where some run has the key).
 DEFAULT_METRICS = (
     "frames", "ate_rmse_m", "object_chamfer_mean_m", "object_chamfer_max_m", "ghost_fraction_max", "psnr_db",
-    "s_per_frame", "threads",
+    "s_per_frame", "threads", "error",
 )
 FORMATS = ("md", "csv", "json")
 
