@@ -66,7 +66,7 @@ def error_figure(errors: TrajectoryErrors) -> Figure:
     trans.set_ylabel("translation error [cm]")
     trans.legend(loc="upper left", fontsize=8)
     rot.plot(errors.times, errors.rotation_deg, "-", color="C0")
-    rot.set_ylabel("rotation error [deg]")
+    rot.set_ylabel("rotation error [deg]\n(orientations aligned)")
     rot.set_xlabel("time since the first frame [s]")
     for ax in (trans, rot):
         ax.grid(alpha=0.3)

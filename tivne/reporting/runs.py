@@ -138,9 +138,12 @@ def results_table(rows: Sequence[RunRow], metrics: Sequence[str] = DEFAULT_METRI
 
 
 def format_value(value: Any) -> str:
-    """A cell as text: floats with 4 significant digits, None as empty."""
+    """A cell as text: floats with 4 significant digits (also overrides typed as long decimals, such
+    as an Optuna trial's ``5.269299097981381``), None as empty."""
     if value is None:
         return ""
+    if isinstance(value, str) and re.fullmatch(r"-?\d+\.\d{5,}", value):
+        value = float(value)
     if isinstance(value, float):
         return "nan" if math.isnan(value) else f"{value:.4g}"
     if isinstance(value, (list, dict)):

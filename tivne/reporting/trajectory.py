@@ -16,7 +16,8 @@ class TrajectoryErrors:
 
     times: (N,) seconds since the run's first frame; estimated, reference: (N, 3) positions in the
     GT world frame; translation_m: (N,) position error; rotation_deg: (N,) angle between the
-    aligned estimated orientation and GT's; reference_poses: (N, 4, 4) GT c2w.
+    estimated orientation and GT's after the one constant rotation that aligns them best
+    (:func:`orientation_alignment`); reference_poses: (N, 4, 4) GT c2w.
     """
 
     times: np.ndarray
@@ -33,6 +34,17 @@ def rotation_angle_deg(r: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
+def orientation_alignment(reference: np.ndarray, estimated: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation A minimising Σ ‖R_ref,i − A R_est,i‖² over (N, 3, 3) orientations.
+
+    Not the ATE's alignment: that one is fitted to positions, and along a nearly straight path it
+    leaves the roll about the path free, which would show as a constant rotation error.
+    """
+    u, _, vt = np.linalg.svd((reference @ np.swapaxes(estimated, 1, 2)).sum(axis=0))
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
 def trajectory_errors(
     ts_est: np.ndarray, est_poses: np.ndarray, ts_gt: np.ndarray, gt_poses: np.ndarray
 ) -> tuple[TrajectoryErrors | None, str | None]:
@@ -41,8 +53,9 @@ def trajectory_errors(
     metrics, ate = trajectory_metrics(ts_est, est_poses, ts_gt, gt_poses)
     if ate is None:
         return None, metrics.get("ate_reason") or "ATE not computable"
-    est_r = ate.rotation @ np.asarray(est_poses)[ate.idx_est, :3, :3]
+    est_r = np.asarray(est_poses)[ate.idx_est, :3, :3]
     ref = np.asarray(gt_poses)[ate.idx_ref]
+    est_r = orientation_alignment(ref[:, :3, :3], est_r) @ est_r
     errors = TrajectoryErrors(
         times=np.asarray(ts_est)[ate.idx_est] - float(ts_est[0]),
         estimated=ate.aligned_positions,
