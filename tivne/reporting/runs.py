@@ -114,10 +114,12 @@ def metric_columns(rows: Sequence[RunRow], patterns: Sequence[str]) -> list[str]
 
 
 def run_label(path: Path, root: Path | None) -> str:
-    """The ``run`` cell: the folder relative to ``root``, where a multirun job folder
-    (``<num>_<overrides>``, conf/config.yaml's hydra.sweep.subdir) is shortened to its parent and
-    number, since its overrides are columns of the table anyway."""
-    label = path.relative_to(root) if root is not None and path.is_relative_to(root) and path != root else path
+    """The ``run`` cell: the folder relative to ``root`` (its name when it is ``root``), where a
+    multirun job folder (``<num>_<overrides>``, conf/config.yaml's hydra.sweep.subdir) is shortened
+    to its parent and number, since its overrides are columns of the table anyway."""
+    if root is not None and path == root:  # a single run dir given: its name is enough
+        return path.name
+    label = path.relative_to(root) if root is not None and path.is_relative_to(root) else path
     number = re.match(r"(\d+)_.*=", label.name)
     return str(label.parent / number.group(1)) if number else str(label)
 
