@@ -119,6 +119,7 @@ def test_search_tracking_experiment_is_an_optuna_search():
 
 
 @needs_sweep
+@pytest.mark.slow  # a subprocess and two joblib workers, each importing torch and Lightning (~15 s)
 def test_optuna_on_joblib_runs_trials_side_by_side_and_marks_a_failed_trial(tmp_path):
     """Two trials in one joblib batch: one tracks, one loses every frame (max_jump_m=1e-9); the best
     is the one that tracked, the failed one is a FAIL trial with its error in metrics.json. (The random
@@ -144,6 +145,7 @@ def test_optuna_on_joblib_runs_trials_side_by_side_and_marks_a_failed_trial(tmp_
 
 
 @needs_sweep
+@pytest.mark.slow  # a subprocess and a submitit job (~12 s)
 def test_submitit_local_runs_the_same_path(tmp_path):
     sweep = tmp_path / "local"
     out = train("-m", "hydra/launcher=submitit_local", *SMOKE, "keyframe=random", f"hydra.sweep.dir={sweep}")
