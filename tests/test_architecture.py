@@ -25,6 +25,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("tivne.masks",),
     ("tivne.slam",),
     ("tivne.evaluation",),
+    ("tivne.reporting",),
     ("tivne.cli",),
 )
 # Command-line entry points: on top of everything, imported by no module.

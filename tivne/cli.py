@@ -4,44 +4,110 @@ Bad input -- a missing or corrupt file, a setting outside its range, a missing m
 ends a command with one line ``error: <where>: <problem>`` on stderr and exit status 2, never a
 traceback; a run whose result is unusable (:class:`tivne.utils.RunFailed`, e.g. most frames not
 tracked) ends with one such line and exit status 3, after its results are written. :func:`one_line_errors` wraps a Hydra task function to do that; the exceptions it turns
-into such a line are :data:`BAD_INPUT` (also when Hydra's ``instantiate`` wrapped them).
+into such a line are :data:`BAD_INPUT` (also when Hydra's ``instantiate`` wrapped them). In a
+multirun (``-m``) the line is printed and :class:`JobFailed` raised instead of exiting, so the
+launcher records that one job as failed (an Optuna trial as FAIL) and the other jobs still run.
 """
 
 from __future__ import annotations
 
 import functools
+import os
 import re
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 from hydra.core.config_store import ConfigStore
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue
 
 from data_modules.frame import DatasetError
+from data_modules.sequence import SequenceView
 from tivne.config import (
     SECTIONS,
     ConfigError,
     MeshConfig,
     MeshEvalSettings,
+    RenderConfig,
+    ReportConfig,
     default_tree,
 )
 from tivne.utils import RunFailed
 
 EXIT_BAD_INPUT = 2
 BAD_INPUT: tuple[type[BaseException], ...] = (DatasetError, ConfigError, MissingMandatoryValue, FileNotFoundError, PermissionError)
+THREADS_RESOLVER = "tivne.threads_per_job"
+
+
+class JobFailed(Exception):
+    """One job of a multirun failed; the message is its ``error: ...`` line."""
 
 
 def register_defaults() -> None:
     """Make the defaults of :mod:`tivne.config` available to the YAML files in ``conf/`` as the
-    nodes ``tivne_defaults`` (every SLAM section), ``tivne_mesh`` (``mesh``) and ``tivne_evaluate``
-    (``mesh`` + ``settings``). Untyped on purpose: values are checked by the dataclasses, which
-    give one-line errors, rather than by OmegaConf."""
+    nodes ``tivne_defaults`` (every SLAM section), ``tivne_mesh`` (``mesh``), ``tivne_evaluate``
+    (``mesh`` + ``settings``) and ``tivne_report`` (``report``), and register the resolver
+    ``${tivne.threads_per_job:}`` (:func:`threads_per_job`). Untyped on purpose: values are checked
+    by the dataclasses, which give one-line errors, rather than by OmegaConf."""
     store = ConfigStore.instance()
     store.store(name="tivne_defaults", node=default_tree(SECTIONS))
     store.store(name="tivne_mesh", node=default_tree((MeshConfig,)))
     store.store(name="tivne_evaluate", node=default_tree((MeshConfig, MeshEvalSettings)))
+    store.store(name="tivne_report", node=default_tree((ReportConfig,)))
+    if not OmegaConf.has_resolver(THREADS_RESOLVER):
+        OmegaConf.register_new_resolver(THREADS_RESOLVER, lambda: threads_per_job(current_launcher(), usable_cores()))
+
+
+def usable_cores() -> int:
+    """CPU cores this process may run on (its affinity mask, e.g. a Slurm or container limit)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def current_launcher() -> Mapping[str, Any]:
+    """The running job's ``hydra.launcher`` node ({} outside a Hydra job, e.g. the compose API)."""
+    if not HydraConfig.initialized():
+        return {}
+    return HydraConfig.get().get("launcher") or {}
+
+
+def threads_per_job(launcher: Mapping[str, Any], cores: int) -> int | None:
+    """torch threads for one job of a launcher that runs several at once, so they share the cores
+    instead of oversubscribing them: ``cpus_per_task`` (submitit, Slurm) when set; 1 under
+    submitit's local launcher without it (it starts every job of the sweep at once); cores //
+    ``n_jobs`` (joblib; -1 = all cores, -2 = all but one, as in joblib); None (torch's default, all
+    cores) for a launcher that runs one job at a time. ``runtime.threads=N`` overrides this."""
+    if launcher.get("cpus_per_task"):
+        return int(launcher["cpus_per_task"])
+    if str(launcher.get("_target_", "")).endswith("submitit_launcher.LocalLauncher"):
+        return 1
+    n_jobs = launcher.get("n_jobs")
+    if not n_jobs:
+        return None
+    concurrent = int(n_jobs) if n_jobs > 0 else max(1, cores + 1 + int(n_jobs))
+    return max(1, cores // concurrent)
+
+
+def run_sequence(run_dir: str | Path) -> tuple[SequenceView, RenderConfig]:
+    """The sequence as a run streamed it and the run's render settings, rebuilt from its own
+    run_dir/.hydra/config.yaml."""
+    root = Path(run_dir)
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: run directory not found")
+    config = root / ".hydra" / "config.yaml"
+    if not config.is_file():
+        raise FileNotFoundError(f"{config}: run config not found")
+    cfg = OmegaConf.load(config)
+    data = OmegaConf.to_container(cfg.data, resolve=True) if "data" in cfg else {}
+    render = RenderConfig.from_mapping(OmegaConf.to_container(cfg.render, resolve=True) if "render" in cfg else {})
+    return SequenceView(instantiate(cfg.dataset), **data), render
 
 
 def bad_input_cause(exc: BaseException) -> BaseException | None:
@@ -69,22 +135,34 @@ def error_line(exc: BaseException) -> str:
     return "error: " + re.sub(r"\s+", " ", first).strip()
 
 
+def in_multirun() -> bool:
+    """True inside a job of ``python -m ... -m`` (a sweep)."""
+    return HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN
+
+
+def fail(line: str, exit_code: int) -> None:
+    """Print ``line``; exit with ``exit_code``, or in a multirun raise :class:`JobFailed` (exiting
+    would end the whole sweep, and a launcher's worker process with it)."""
+    print(line, file=sys.stderr)
+    if in_multirun():
+        raise JobFailed(line) from None
+    sys.exit(exit_code)
+
+
 def one_line_errors(task: Callable[..., Any]) -> Callable[..., Any]:
-    """Wrap a command's body: bad input becomes :func:`error_line` and exit status 2."""
+    """Wrap a command's body: bad input becomes :func:`error_line` and exit status 2 (see :func:`fail`)."""
 
     @functools.wraps(task)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
             return task(*args, **kwargs)
         except RunFailed as exc:
-            print(error_line(exc), file=sys.stderr)
-            sys.exit(exc.exit_code)
+            fail(error_line(exc), exc.exit_code)
         except Exception as exc:  # noqa: BLE001 -- only bad input is turned into one line
             cause = bad_input_cause(exc)
             if cause is None:
                 raise
-            print(error_line(cause), file=sys.stderr)
-            sys.exit(EXIT_BAD_INPUT)
+            fail(error_line(cause), EXIT_BAD_INPUT)
 
     return wrapper
 

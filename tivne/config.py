@@ -27,7 +27,8 @@ __all__ = ["ConfigError", "Settings", "default_tree", "setting", "SECTIONS"]
 
 @dataclass(frozen=True)
 class RuntimeConfig(Settings):
-    """threads: torch threads (null = torch's default, all cores). tune_allocator: glibc mallopt keeps
+    """threads: torch threads (null = torch's default, all cores; conf/config.yaml sets it per job
+    under a parallel launcher, :func:`tivne.cli.threads_per_job`). tune_allocator: glibc mallopt keeps
     activations in the heap (measured 1.1-3x faster optimiser steps on CPU)."""
 
     section: ClassVar[str] = "runtime"
@@ -321,7 +322,41 @@ class TrainerConfig(Settings):
     progress_bar: bool = True
 
 
+@dataclass(frozen=True)
+class ObjectiveConfig(Settings):
+    """What ``python -m tivne.train`` returns, the value a sweeper (``hydra/sweeper=optuna``) minimises.
+    metric: 'ate' (ate_rmse_m), 'chamfer' (object_chamfer_mean_m: needs output.evaluate and a dataset
+    with GT geometry), 's_per_frame', or 'weighted' = ate_weight·ate_rmse_m + chamfer_weight·
+    object_chamfer_mean_m + time_weight·s_per_frame (a term of weight 0 is left out, so its metric may
+    be missing; the defaults count 1 cm of either error like 1 s/frame). A metric the run could not
+    compute is never replaced by a number: the command returns nothing and the trial fails."""
+
+    section: ClassVar[str] = "objective"
+    metric: str = setting("ate", choices=("ate", "chamfer", "s_per_frame", "weighted"))
+    ate_weight: float = setting(100.0, ge=0)
+    chamfer_weight: float = setting(100.0, ge=0)
+    time_weight: float = setting(1.0, ge=0)
+
+    def check(self) -> None:
+        if self.metric == "weighted" and self.ate_weight == self.chamfer_weight == self.time_weight == 0:
+            raise ConfigError("objective.metric=weighted: every weight is 0; give at least one term a weight > 0")
+
+
+@dataclass(frozen=True)
+class ReportConfig(Settings):
+    """``python -m tivne.report``: frames: how many processed frames (evenly spaced) the render / GT /
+    depth-error contact sheet re-renders from the checkpoint (0 = none); render_stride: their pixel
+    step; mesh_width: pixels across each mesh snapshot (two viewpoints per mesh time); mesh_faces:
+    at most this many faces are rasterised per snapshot (the rest are dropped evenly, for speed)."""
+
+    section: ClassVar[str] = "report"
+    frames: int = setting(4, ge=0)
+    render_stride: int = setting(2, ge=1)
+    mesh_width: int = setting(480, ge=32)
+    mesh_faces: int = setting(400_000, ge=1)
+
+
 SECTIONS: tuple[type[Settings], ...] = (
     RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, OdometryConfig, MappingConfig, KeyframeConfig,
-    SamplerConfig, MeshConfig, OutputConfig, TrainerConfig,
+    SamplerConfig, MeshConfig, OutputConfig, TrainerConfig, ObjectiveConfig,
 )

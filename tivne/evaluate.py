@@ -15,28 +15,14 @@ import json
 import sys
 
 import hydra
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from data_modules.sequence import SequenceView
-from tivne.cli import mesh_settings, one_line_errors, register_defaults
-from tivne.config import MeshEvalSettings, RenderConfig
+from tivne.cli import mesh_settings, one_line_errors, register_defaults, run_sequence
+from tivne.config import MeshEvalSettings
 from tivne.evaluation import evaluate_run
 from tivne.slam.outputs import RunDir
 
 register_defaults()
-
-
-def run_sequence(run: RunDir) -> tuple[SequenceView, RenderConfig]:
-    """The sequence as the run streamed it and the run's render settings, from run_dir/.hydra/config.yaml."""
-    if not run.root.is_dir():
-        raise FileNotFoundError(f"{run.root}: run directory not found")
-    if not run.config.is_file():
-        raise FileNotFoundError(f"{run.config}: run config not found")
-    cfg = OmegaConf.load(run.config)
-    data = OmegaConf.to_container(cfg.data, resolve=True) if "data" in cfg else {}
-    render = RenderConfig.from_mapping(OmegaConf.to_container(cfg.render, resolve=True) if "render" in cfg else {})
-    return SequenceView(instantiate(cfg.dataset), **data), render
 
 
 @hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")
@@ -45,7 +31,7 @@ def main(cfg: DictConfig) -> None:
     mesh = mesh_settings(cfg.mesh)
     settings = MeshEvalSettings.from_mapping(OmegaConf.to_container(cfg.settings, resolve=True))
     run = RunDir(cfg.run_dir)
-    view, render = run_sequence(run)
+    view, render = run_sequence(run.root)
     metrics = evaluate_run(run.root, view, mesh, settings, render, cfg.frame, bool(cfg.prefer_mesh_files))
     run.merge_metrics(metrics)
     if metrics.get("ate_partial"):

@@ -1,7 +1,9 @@
 """Entry point: ``python -m tivne.train dataset=cube field=tivne sampler=mask_weighted keyframe=overlap``.
 
 The only place that reads the Hydra config: it checks every section against :mod:`tivne.config`
-before any data is read, composes the typed stages and hands them to the Lightning trainer.
+before any data is read, composes the typed stages and hands them to the Lightning trainer. It
+returns the ``objective`` (:mod:`tivne.evaluation.objective`), the value a sweeper minimises
+(``-m hydra/sweeper=optuna``, see ``conf/experiment/search_tracking.yaml``).
 """
 
 from __future__ import annotations
@@ -21,13 +23,14 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from data_modules.sequence import SequenceDataModule
-from tivne.cli import one_line_errors, register_defaults
+from tivne.cli import in_multirun, one_line_errors, register_defaults
 from tivne.config import (
     FieldConfig,
     KeyframeConfig,
     LossWeights,
     MappingConfig,
     MeshConfig,
+    ObjectiveConfig,
     OdometryConfig,
     OutputConfig,
     RenderConfig,
@@ -37,11 +40,12 @@ from tivne.config import (
     TrainerConfig,
 )
 from tivne.evaluation import evaluate_run
+from tivne.evaluation.objective import objective_value
 from tivne.masks.base import MaskProvider
 from tivne.meshing import select_mesh_times
 from tivne.render.samplers import PixelSampler
 from tivne.slam.keyframes import KeyframePolicy
-from tivne.slam.outputs import RunDir
+from tivne.slam.outputs import RunDir, tensorboard_hparams
 from tivne.slam.system import TivNeSLAM
 from tivne.utils import RunFailed, RunInterrupted, configure_runtime, interrupt_signals
 
@@ -68,6 +72,7 @@ class TrainSettings:
     mesh: MeshConfig
     output: OutputConfig
     trainer: TrainerConfig
+    objective: ObjectiveConfig
 
     @classmethod
     def from_config(cls, cfg: DictConfig) -> "TrainSettings":
@@ -106,17 +111,18 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     :class:`tivne.masks.base.RecordingMasks` around the configured one).
     """
     settings = TrainSettings.from_config(cfg)  # before any data is read
-    configure_runtime(settings.runtime.threads, settings.runtime.tune_allocator)
+    runtime = configure_runtime(settings.runtime.threads, settings.runtime.tune_allocator)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     dataset = instantiate(cfg.dataset)
     datamodule = SequenceDataModule(dataset, **plain(cfg.data))
     select_mesh_times(datamodule.view.timestamps, list(settings.mesh.times) or None)  # refuse bad times before the run
     system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks)
+    logger = TensorBoardLogger(save_dir=str(run_dir), name="", version=RunDir.TENSORBOARD, default_hp_metric=False)
     trainer = L.Trainer(
         max_epochs=1,
         accelerator=settings.trainer.accelerator,
         devices=settings.trainer.devices,
-        logger=TensorBoardLogger(save_dir=str(run_dir), name="", version=RunDir.TENSORBOARD, default_hp_metric=False),
+        logger=logger,
         enable_checkpointing=False,
         enable_model_summary=False,
         num_sanity_val_steps=0,
@@ -128,31 +134,38 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     try:
         with interrupt_signals():
             trainer.fit(system, datamodule=datamodule)
-            metrics = dict(system.last_metrics)
+            extra = {"threads": runtime["threads"]}
             if settings.output.evaluate:
-                extra = evaluate_run(Path(run_dir), datamodule.view, settings.mesh, render=settings.render)
-                metrics = RunDir(run_dir).merge_metrics(extra)
+                extra |= evaluate_run(Path(run_dir), datamodule.view, settings.mesh, render=settings.render)
+            metrics = RunDir(run_dir).merge_metrics(extra)
     except RunInterrupted as exc:
         if not system.last_metrics.get("complete"):  # a second signal now is the default action: exit at once
             system.save_partial(f"interrupted by {exc} after {len(system.trajectory)} frames")
         raise
-    check_tracked(metrics)
+    tensorboard_hparams(logger, plain(cfg), metrics)
+    check_tracked(run_dir, metrics)
     return metrics
 
 
-def check_tracked(metrics: dict[str, Any]) -> None:
+def check_tracked(run_dir: str | Path, metrics: dict[str, Any]) -> None:
     """Refuse a run where most frames have no tracked pose (their poses are guesses; a trajectory of
-    them must not pass for a result)."""
+    them must not pass for a result): metrics.json gets the reason as ``error``, then RunFailed."""
     frames = int(metrics.get("frames") or 0)
     untracked = int(metrics.get("tracking_lost") or 0) + int(metrics.get("frames_without_tracking") or 0)
     if frames > 1 and untracked > (frames - 1) / 2:
-        raise RunFailed(
+        reason = (
             f"{untracked} of {frames - 1} frames could not be tracked ({metrics.get('frames_without_tracking')} without usable "
             f"static depth, {metrics.get('tracking_lost')} lost); see the warnings above and metrics.json"
         )
+        RunDir(run_dir).merge_metrics({"error": reason})
+        raise RunFailed(reason)
 
 
-@hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+# An absolute path: the same whether this module runs as __main__ or as tivne.train (below).
+CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
+
+
+@hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> float | None:
     run_dir = HydraConfig.get().runtime.output_dir
@@ -164,8 +177,23 @@ def main(cfg: DictConfig) -> float | None:
     keys = ["frames", "s_per_frame", "track_ms_per_iter", "map_ms_per_iter", "ate_rmse_m", "peak_rss_mb"]
     print(json.dumps({k: metrics.get(k) for k in keys}))
     print(f"results in {run_dir}")
-    return metrics.get("ate_rmse_m")  # the value a sweeper would minimise
+    return sweep_value(metrics, ObjectiveConfig.from_mapping(plain(cfg.objective)))
+
+
+def sweep_value(metrics: dict[str, Any], objective: ObjectiveConfig) -> float | None:
+    """The objective to minimise; None (a failed Optuna trial, never a made-up number) with a
+    warning when the run could not compute it."""
+    value, reason = objective_value(metrics, objective)
+    if value is None:
+        note = ": this trial fails" if in_multirun() else ""
+        print(f"warning: objective {objective.metric} not computable ({reason}){note}", file=sys.stderr)
+    return value
 
 
 if __name__ == "__main__":
-    main()
+    # Run the task function of the module tivne.train, not of __main__: a launcher that runs jobs in
+    # other processes (joblib, submitit) pickles it, and one from __main__ would be pickled by value,
+    # without the module's names.
+    from tivne.train import main as task
+
+    task()

@@ -7,7 +7,9 @@
       checkpoints/slam.pt        the field, its construction arguments and the trajectory
       meshes/mesh_t<t>.ply       meshes at chosen timestamps (seconds, 3 decimals)
       renders/frame<k>_<x>.png   rendered vs observed images
-      tb/                        TensorBoard events
+      tb/                        TensorBoard events (per-frame scalars, images, the meshes and
+                                 the final metrics as hparams)
+      report.html, report/       python -m tivne.report: the page and its PNGs
 
 Every write is atomic (:func:`data_modules.io.atomic_write`): a reader sees the old file or the
 new one, and a failed write leaves neither half a file nor a temporary behind.
@@ -18,11 +20,13 @@ from __future__ import annotations
 import json
 import math
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+import trimesh
 
 from data_modules.io import atomic_write
 from data_modules.tables import write_tum_trajectory
@@ -46,6 +50,8 @@ class RunDir:
     MESHES = "meshes"
     RENDERS = "renders"
     TENSORBOARD = "tb"
+    REPORT = "report.html"
+    REPORT_IMAGES = "report"
 
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)
@@ -65,6 +71,15 @@ class RunDir:
     @property
     def config(self) -> Path:
         return self.root / ".hydra" / "config.yaml"
+
+    @property
+    def overrides(self) -> Path:
+        """The command-line overrides of the run (written by Hydra)."""
+        return self.root / ".hydra" / "overrides.yaml"
+
+    @property
+    def report(self) -> Path:
+        return self.root / self.REPORT
 
     def mesh_path(self, timestamp: float) -> Path:
         """meshes/mesh_t{t:.3f}.ply for a mesh at ``timestamp`` seconds."""
@@ -145,3 +160,39 @@ def image_panels(rgb: torch.Tensor, depth: torch.Tensor, rgb_obs: torch.Tensor, 
         "depth": to8(gray(torch.cat([depth_obs, depth], dim=1) / dmax)),
         "depth_error": to8(gray(err / 0.05)),
     }
+
+
+# A TensorBoard mesh is a preview: a larger mesh is thinned to every k-th face (the PLY keeps them all).
+TENSORBOARD_MESH_FACES = 100_000
+
+
+def tensorboard_mesh(writer: Any, tag: str, mesh: trimesh.Trimesh, step: int) -> None:
+    """Add ``mesh`` to a TensorBoard ``SummaryWriter``; a failure is a warning, never a failed run."""
+    if len(mesh.faces) == 0:
+        return
+    try:
+        faces = np.asarray(mesh.faces)[:: max(1, -(-len(mesh.faces) // TENSORBOARD_MESH_FACES))]
+        colors = np.asarray(mesh.visual.vertex_colors)[:, :3] if mesh.visual.kind == "vertex" else None
+        writer.add_mesh(
+            tag,
+            vertices=torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32)[None],
+            faces=torch.as_tensor(faces, dtype=torch.int32)[None],
+            colors=None if colors is None else torch.as_tensor(colors, dtype=torch.uint8)[None],
+            global_step=step,
+        )
+    except Exception as exc:  # noqa: BLE001 -- an optional view of the results
+        print(f"warning: TensorBoard: mesh {tag} not logged ({type(exc).__name__}: {exc})", file=sys.stderr)
+
+
+def tensorboard_hparams(logger: Any, hparams: Mapping[str, Any], metrics: Mapping[str, Any]) -> None:
+    """The run's settings as TensorBoard hparams with its final numeric metrics (as ``final/<key>``),
+    through a Lightning logger; a failure is a warning, never a failed run."""
+    numbers = {
+        f"final/{k}": float(v) for k, v in metrics.items()
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    }
+    try:
+        logger.log_hyperparams(dict(hparams), metrics=numbers)
+        logger.finalize("success")
+    except Exception as exc:  # noqa: BLE001 -- an optional view of the results
+        print(f"warning: TensorBoard: hparams not logged ({type(exc).__name__}: {exc})", file=sys.stderr)

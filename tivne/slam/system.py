@@ -37,7 +37,7 @@ from tivne.slam.checkpoint import save_checkpoint
 from tivne.slam.frontend import Tracker
 from tivne.slam.keyframes import KeyframeDatabase, KeyframePolicy
 from tivne.slam.mapping import Mapper, final_pass
-from tivne.slam.outputs import RunDir, image_panels
+from tivne.slam.outputs import RunDir, image_panels, tensorboard_mesh
 from tivne.slam.tracking import frozen
 from tivne.slam.trajectory import Trajectory
 
@@ -340,12 +340,15 @@ class TivNeSLAM(L.LightningModule):
         stamps = self.trajectory.timestamps()
         times = select_mesh_times(stamps, list(self.mesh_cfg.times) or None)
         centres = self.poses()[:, :3, 3].numpy()
+        writer = getattr(self.logger, "experiment", None) if self.logger is not None else None
         result: dict[str, Any] = {}
         for ts in times:
             tau = time_to_tau(ts, self.t0, self.field.time_scale)
             mesh = extract_mesh(self.field, tau, self.mesh_cfg.resolution, culling=self.mesh_cfg, camera_centres=centres)
             save_mesh(mesh, self.run.mesh_path(ts))
             result[f"mesh_t{ts:.3f}_faces"] = int(len(mesh.faces))
+            if writer is not None and hasattr(writer, "add_mesh"):
+                tensorboard_mesh(writer, f"mesh/t{ts:.3f}", mesh, len(stamps) - 1)
         return result
 
 
