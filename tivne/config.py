@@ -271,12 +271,17 @@ class MeshConfig(Settings):
 class OutputConfig(Settings):
     """image_every: log rendered images every n frames (0 = never). save_every: rewrite
     trajectory.txt every n frames, so an interrupted run keeps its poses (0 = only at the end).
-    allocation_stride: back-project every n-th pixel when allocating voxels. evaluate: compute the
-    mesh metrics against the dataset's GT geometry at the end (where it has one)."""
+    checkpoint_every: write the whole state of the run (map, optimiser, keyframes, poses, tracker,
+    masks, RNGs, position) to checkpoints/slam.pt every n frames and before the final pass, so a
+    crashed run continues from there with ``resume=true`` (0 = only at the end and on SIGINT /
+    SIGTERM; each one costs a write of the stored keyframes). allocation_stride: back-project every
+    n-th pixel when allocating voxels. evaluate: compute the mesh metrics against the dataset's GT
+    geometry at the end (where it has one)."""
 
     section: ClassVar[str] = "output"
     image_every: int = setting(50, ge=0)
     save_every: int = setting(25, ge=0)
+    checkpoint_every: int = setting(50, ge=0)
     allocation_stride: int = setting(4, ge=1)
     evaluate: bool = True
 
@@ -312,6 +317,22 @@ class MeshEvalSettings(Settings):
 
 
 @dataclass(frozen=True)
+class RunDirConfig(Settings):
+    """What ``tivne.train`` does with a run directory (``hydra.run.dir``) that already holds results
+    (trajectory.txt, metrics.json, checkpoints/, meshes/, renders/): refuse it (default), continue
+    it from its last checkpoint (resume=true; the config must be the same) or clear those results
+    first (overwrite=true). Top-level keys: ``resume=true``, not ``run_dir.resume``."""
+
+    section: ClassVar[str] = ""
+    resume: bool = False
+    overwrite: bool = False
+
+    def check(self) -> None:
+        if self.resume and self.overwrite:
+            raise ConfigError("resume=true and overwrite=true: choose one (resume continues the run, overwrite clears it)")
+
+
+@dataclass(frozen=True)
 class TrainerConfig(Settings):
     """accelerator: cpu, gpu/cuda (one CUDA device) or auto; progress_bar: Lightning's bar."""
 
@@ -323,5 +344,5 @@ class TrainerConfig(Settings):
 
 SECTIONS: tuple[type[Settings], ...] = (
     RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, OdometryConfig, MappingConfig, KeyframeConfig,
-    SamplerConfig, MeshConfig, OutputConfig, TrainerConfig,
+    SamplerConfig, MeshConfig, OutputConfig, TrainerConfig, RunDirConfig,
 )
