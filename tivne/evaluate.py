@@ -4,7 +4,8 @@
                              [settings.window_s=0.5] [settings.threshold_m=0.05] ...
 
 The dataset and the render settings are rebuilt from the run's own config (run_dir/.hydra/config.yaml);
-see :mod:`tivne.evaluation` for what is measured. Mesh times outside the run's recorded range are
+see :mod:`tivne.evaluation` for what is measured. A run without trajectory.txt is refused (its
+metrics.json keeps what it has). Mesh times outside the run's recorded range are
 refused before anything is written. The new metrics are printed as JSON. Errors are one
 ``error: ...`` line, exit status 2.
 """
@@ -33,6 +34,8 @@ def run_sequence(run: RunDir) -> tuple[SequenceView, RenderConfig]:
         raise FileNotFoundError(f"{run.root}: run directory not found")
     if not run.config.is_file():
         raise FileNotFoundError(f"{run.config}: run config not found")
+    if not run.trajectory.is_file():  # evaluating it would replace the ATE metrics.json holds by nulls
+        raise FileNotFoundError(f"{run.trajectory}: not found; the run has no poses to evaluate (resume=true continues an interrupted run)")
     cfg = OmegaConf.load(run.config)
     data = OmegaConf.to_container(cfg.data, resolve=True) if "data" in cfg else {}
     render = RenderConfig.from_mapping(OmegaConf.to_container(cfg.render, resolve=True) if "render" in cfg else {})
