@@ -32,6 +32,7 @@ from tivne.config import (
     RunDirConfig,
     default_tree,
 )
+from tivne.slam.checkpoint import check_resumable
 from tivne.slam.outputs import RunDir, check_run_dir
 from tivne.utils import RunFailed
 
@@ -115,6 +116,8 @@ class RunDirGuard(Callback):
                 saved = OmegaConf.to_container(OmegaConf.load(run.config), resolve=False)
                 current = {k: v for k, v in OmegaConf.to_container(config, resolve=False).items() if k != "hydra"}
             check_run_dir(run, options.resume, options.overwrite, saved, current)
+            if options.resume:
+                check_resumable(run.checkpoint)
         except Exception as exc:  # noqa: BLE001 -- bad input becomes one line; anything else is a bug
             report_bad_input(exc)
             raise

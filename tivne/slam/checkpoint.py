@@ -232,15 +232,27 @@ def to_device(tree: Any, device: torch.device | str) -> Any:
     return tree
 
 
+def resume_state_of(path: str | Path, payload: dict[str, Any]) -> dict[str, Any]:
+    """The resume state of a checkpoint payload, or a one-line RunDirError when it has none."""
+    state = payload.get("resume")
+    if not isinstance(state, dict) or "position" not in state:
+        raise RunDirError(path, "holds no resume state (written by an older version or during the final pass); run without resume=true")
+    return state
+
+
+def check_resumable(path: str | Path) -> None:
+    """Refuse (one line) a checkpoint that cannot be resumed: missing, unreadable or without a
+    resume state. Cheap (the tensors are mapped, not read): for a check before anything is written."""
+    resume_state_of(path, read_checkpoint(path, mmap=True))
+
+
 def load_resume_state(path: str | Path, config: dict[str, Any], timestamps: np.ndarray) -> dict[str, Any]:
     """The checkpoint payload to resume a run from, checked against this run: the same ``config``
     (but for where it runs) and a sequence whose first frames are the ones already processed
     (``timestamps``: the whole stream's, seconds). Raises one-line DatasetError / RunDirError."""
     path = Path(path)
     payload = read_checkpoint(path)
-    state = payload.get("resume")
-    if not isinstance(state, dict) or "position" not in state:
-        raise RunDirError(path, "holds no resume state (written by an older version or during the final pass); run without resume=true")
+    state = resume_state_of(path, payload)
     if payload.get("config") is not None:
         differ = config_differences(payload["config"], config)
         if differ:
