@@ -49,6 +49,7 @@ def main(cfg: DictConfig) -> None:
     settings = MeshEvalSettings.from_mapping(OmegaConf.to_container(cfg.settings, resolve=True))
     run = RunDir(cfg.run_dir)
     view, render = run_sequence(run)
+    run.check_writable()  # before the work, not after: metrics.json will be written there
     metrics = evaluate_run(run.root, view, mesh, settings, render, cfg.frame, bool(cfg.prefer_mesh_files))
     run.merge_metrics(metrics)
     if metrics.get("ate_partial"):

@@ -45,6 +45,7 @@ def mesh_run(
     if not run.root.is_dir():
         raise FileNotFoundError(f"{run.root}: run directory not found")
     field, meta = load_checkpoint(run.checkpoint, device=device)
+    run.check_writable()  # before marching cubes, not after
     written = []
     for ts in select_mesh_times(meta["timestamps"], list(cfg.times) or None, every):
         tau = time_to_tau(ts, meta["t0"], field.time_scale)

@@ -102,9 +102,12 @@ class RunDir:
 
     def check_writable(self) -> None:
         """Raise the OSError (EROFS, EACCES, ...) naming the folder when a file cannot be created in
-        it or in one of its existing result folders (root can write anywhere a mode allows, so ask
-        the file system rather than the mode bits)."""
-        for folder in (self.root, self.checkpoint.parent, self.root / self.MESHES, self.root / self.RENDERS):
+        it or in one of its existing result folders, or, for a folder still to be made, in its
+        nearest existing parent (ask the file system, not the mode bits: root writes whatever they say)."""
+        parent = self.root.absolute()
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        for folder in (parent, self.checkpoint.parent, self.root / self.MESHES, self.root / self.RENDERS):
             if not folder.is_dir():
                 continue
             try:
@@ -190,8 +193,7 @@ def check_run_dir(run: RunDir, resume: bool, overwrite: bool, saved: Mapping[str
     """
     if run.root.exists() and not run.root.is_dir():
         raise RunDirError(run.root, "run directory is a file")
-    if run.root.is_dir():
-        run.check_writable()
+    run.check_writable()
     if resume:
         if not run.checkpoint.is_file():
             raise RunDirError(run.checkpoint, "nothing to resume (no checkpoint; run without resume=true)")
