@@ -216,6 +216,7 @@ CASES: tuple[Case, ...] = (
     Case("resume a truncated checkpoint", "train", (*SMOKE, "resume=true", *TRAIN_RUN), "not a readable TivNe checkpoint", setup=run_then(truncate_checkpoint, complete=False)),
     Case("full disk at the checkpoint", "train", (*SMOKE, *TRAIN_RUN), "run/checkpoints/slam.pt: No space left on device", patch="torch.save"),
     Case("read-only run dir", "train", (*SMOKE, *TRAIN_RUN), READ_ONLY, setup=empty_dir("run"), read_only=True),
+    Case("new run dir in a read-only folder", "train", (*SMOKE, "hydra.run.dir={d}/run/new"), READ_ONLY, setup=empty_dir("run"), read_only=True),
     # inspect
     Case("inspect: unknown format", "inspect", (*TINY, "format=xml"), "format: must be 'text' or 'json'"),
     Case("inspect: root not given", "inspect", ("dataset=folder",), "missing mandatory config value 'dataset.root'"),
@@ -225,6 +226,8 @@ CASES: tuple[Case, ...] = (
     Case("inspect: corrupt calibration.txt", "inspect", ("dataset=room4", "dataset.root={d}/seq"), "calibration.txt", setup=lambda d: make_cofusion(d / "seq", n=2, calib="20 21 abc")),
     Case("inspect: GT out into a missing folder", "inspect", (*TINY, "gt_out={d}/no/gt.txt"), "no/gt.txt: output folder does not exist"),
     Case("inspect: GT out without ground truth", "inspect", ("dataset=folder", "dataset.root={d}/seq", "gt_out={d}/gt.txt"), "ground", setup=folder()),
+    Case("inspect: GT out into a read-only folder", "inspect", (*TINY, "gt_out={d}/run/gt.txt"), tuple("run/gt.txt: " + m for m in READ_ONLY_ERRORS),
+         setup=empty_dir("run"), read_only=True),
     Case("inspect: max_frames 0", "inspect", (*TINY, "data.max_frames=0"), "data.max_frames: must be >= 1"),
     # mesh
     Case("mesh: run_dir not given", "mesh", (), "missing mandatory config value 'run_dir'"),
@@ -237,8 +240,10 @@ CASES: tuple[Case, ...] = (
     Case("mesh: resolution 0", "mesh", (*MESH_RUN, "mesh.resolution=0"), "mesh.resolution=0.0: must be > 0", setup=interrupted_run),
     Case("mesh: every 0", "mesh", (*MESH_RUN, "every=0"), "every", setup=interrupted_run),
     Case("mesh: full disk", "mesh", MESH_RUN, "No space left on device", setup=run_then(remove("meshes")), patch="write"),
-    Case("mesh: read-only run dir", "mesh", MESH_RUN, tuple("run/meshes/mesh_t0.000.ply: " + m for m in READ_ONLY_ERRORS), setup=run_then(remove("meshes")), read_only=True),
+    Case("mesh: read-only run dir", "mesh", MESH_RUN, READ_ONLY, setup=run_then(remove("meshes")), read_only=True),
     # evaluate
+    Case("evaluate: read-only run dir", "evaluate", EVAL_RUN, READ_ONLY,
+         setup=interrupted_run, read_only=True),
     Case("evaluate: run dir missing", "evaluate", EVAL_RUN, "run: run directory not found"),
     Case("evaluate: no trajectory", "evaluate", EVAL_RUN, "trajectory.txt: not found", setup=run_then(remove("trajectory.txt"))),
     Case("evaluate: no run config", "evaluate", EVAL_RUN, "config.yaml: run config not found", setup=run_then(remove(".hydra"))),
@@ -251,6 +256,8 @@ CASES: tuple[Case, ...] = (
     Case("make_masks: provider needs poses", "make_masks", (*TINY, "masks=geometric", "out={d}/masks"), "needs the tracked pose"),
     Case("make_masks: out not given", "make_masks", (*TINY, "masks=none"), "missing mandatory config value 'out'"),
     Case("make_masks: out is a file", "make_masks", (*TINY, "masks=none", "out={d}/masks"), "masks: File exists", setup=a_file),
+    Case("make_masks: out in a read-only folder", "make_masks", (*TINY, "masks=none", "out={d}/run/masks"), tuple("run/masks: " + m for m in READ_ONLY_ERRORS),
+         setup=empty_dir("run"), read_only=True),
     Case("make_masks: Mask R-CNN weights missing", "make_masks", (*TINY, "masks=maskrcnn", "masks.provider.weights={d}/none.pth", "out={d}/masks"), "none.pth"),
     Case("make_masks: dataset root missing", "make_masks", ("dataset=folder", "dataset.root={d}/seq", "masks=none", "out={d}/masks"), "seq"),
 )
