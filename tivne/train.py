@@ -30,7 +30,6 @@ from data_modules.sequence import SequenceDataModule
 from tivne.cli import one_line_errors, register_defaults
 from tivne.config import (
     FieldConfig,
-    RunDirConfig,
     KeyframeConfig,
     LossWeights,
     MappingConfig,
@@ -38,6 +37,7 @@ from tivne.config import (
     OdometryConfig,
     OutputConfig,
     RenderConfig,
+    RunDirConfig,
     RuntimeConfig,
     SamplerConfig,
     TrackingConfig,
