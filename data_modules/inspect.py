@@ -4,8 +4,9 @@ Prints a summary (frames, duration, resolution, intrinsics, sampled depth range,
 % dynamic pixels, GT availability); optionally writes the GT camera trajectory in TUM format
 (``gt_out=PATH``) and a PNG contact sheet (``sheet_out=PATH``: one row per frame, rgb | depth | mask).
 
-Bad input (a :class:`DatasetError`, a missing mandatory config value such as ``dataset.root=???``)
-prints one line ``error: <message>`` to stderr and exits with status 2. Reader warnings (missing
+Bad input (a :class:`DatasetError`, a missing mandatory config value such as ``dataset.root=???``,
+an output that cannot be written: any OSError, named by its path) prints one line
+``error: <message>`` to stderr and exits with status 2. Reader warnings (missing
 calibration, a short KLG frame count, dropped frames, ...) print as one line ``warning: <message>``
 each on stderr; the summary itself stays alone on stdout.
 """
@@ -232,13 +233,13 @@ def reader_warnings_on_stderr() -> Iterator[None]:
 
 
 def _root_dataset_error(exc: BaseException) -> BaseException | None:
-    """The DatasetError / MissingMandatoryValue in ``exc``'s cause/context chain, if any."""
+    """The DatasetError / MissingMandatoryValue / OSError in ``exc``'s cause/context chain, if any."""
     from omegaconf.errors import MissingMandatoryValue
 
     seen = set()
     while exc is not None and id(exc) not in seen:
         seen.add(id(exc))
-        if isinstance(exc, (DatasetError, MissingMandatoryValue)):
+        if isinstance(exc, (DatasetError, MissingMandatoryValue, OSError)):
             return exc
         exc = exc.__cause__ or exc.__context__
     return None
@@ -250,6 +251,8 @@ def _error_line(exc: BaseException) -> str:
     if isinstance(exc, MissingMandatoryValue):
         key = getattr(exc, "full_key", None) or ""
         return f"missing mandatory config value {key!r} (set it on the command line, e.g. {key}=...)" if key else str(exc).splitlines()[0]
+    if isinstance(exc, OSError) and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror or type(exc).__name__}"
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 

@@ -42,11 +42,16 @@ def atomic_write(path: str | Path, data: bytes | str | Callable[[Path], None]) -
     Returns:
         ``path`` as a Path.
     Raises:
-        OSError: the folder cannot be created or written (the message names the path).
+        OSError: the folder cannot be created or written (full disk, read-only file system, no
+            permission); its ``filename`` is ``path`` (never the temporary), so the one-line error
+            names the file the user asked for.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise _naming(exc, path) from exc
     tmp = Path(name)
     try:
         if callable(data):
@@ -57,10 +62,19 @@ def atomic_write(path: str | Path, data: bytes | str | Callable[[Path], None]) -
                 fh.write(data.encode() if isinstance(data, str) else data)
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise _naming(exc, path) from exc
         raise
     return path
+
+
+def _naming(exc: OSError, path: Path) -> OSError:
+    """The same OS error (errno and message) with ``path`` as its file name."""
+    if exc.errno is None:
+        return OSError(f"{path}: {exc}")
+    return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path))  # the errno picks the subclass
 
 
 # --------------------------------------------------------------------------------------- paths

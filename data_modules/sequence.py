@@ -10,7 +10,7 @@ import lightning as L
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, Subset
 
 from data_modules.frame import DatasetError, Frame, Intrinsics
 
@@ -131,7 +131,8 @@ def _first(batch: list[Frame]) -> Frame:
 
 
 class SequenceDataModule(L.LightningDataModule):
-    """Streams one sequence frame by frame (batch size 1, time order, no shuffling)."""
+    """Streams one sequence frame by frame (batch size 1, time order, no shuffling), from frame
+    ``start`` of the view on (a resumed run skips the frames it has processed)."""
 
     def __init__(
         self,
@@ -142,18 +143,23 @@ class SequenceDataModule(L.LightningDataModule):
         depth_min: float = 0.0,
         depth_max: float | None = None,
         num_workers: int = 0,
+        start: int = 0,
     ) -> None:
         super().__init__()
         self.view = SequenceView(dataset, stride, max_frames, resize, depth_min, depth_max)
         self.num_workers = num_workers
+        self.start = int(start)
 
     @property
     def intrinsics(self) -> Intrinsics:
         return self.view.intrinsics
 
     def train_dataloader(self) -> DataLoader:
+        if not 0 <= self.start <= len(self.view):
+            raise DatasetError("start", f"frame {self.start} is outside the sequence's {len(self.view)} frames")
+        frames = self.view if self.start == 0 else Subset(self.view, range(self.start, len(self.view)))
         return DataLoader(
-            self.view,
+            frames,
             batch_size=1,
             shuffle=False,
             num_workers=self.num_workers,

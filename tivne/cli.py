@@ -1,12 +1,15 @@
 """What every command-line entry point shares: the default config nodes and the one-line errors.
 
-Bad input -- a missing or corrupt file, a setting outside its range, a missing mandatory value --
-ends a command with one line ``error: <where>: <problem>`` on stderr and exit status 2, never a
+Bad input -- a missing or corrupt file, a setting outside its range, a missing mandatory value, a
+file that cannot be written (full disk, read-only folder: any OSError, named by its path) -- ends a
+command with one line ``error: <where>: <problem>`` on stderr and exit status 2, never a
 traceback; a run whose result is unusable (:class:`tivne.utils.RunFailed`, e.g. most frames not
-tracked) ends with one such line and exit status 3, after its results are written. :func:`one_line_errors` wraps a Hydra task function to do that; the exceptions it turns
-into such a line are :data:`BAD_INPUT` (also when Hydra's ``instantiate`` wrapped them). In a
-multirun (``-m``) the line is printed and :class:`JobFailed` raised instead of exiting, so the
-launcher records that one job as failed (an Optuna trial as FAIL) and the other jobs still run.
+tracked) ends with one such line and exit status 3, after its results are written.
+:func:`one_line_errors` wraps a Hydra task function to do that; the exceptions it turns into such a
+line are :data:`BAD_INPUT` (also when Hydra's ``instantiate`` wrapped them). In a multirun (``-m``)
+the line is printed and :class:`JobFailed` raised instead of exiting, so the launcher records that
+one job as failed (an Optuna trial as FAIL) and the other jobs still run. :class:`RunDirGuard`
+applies the run-directory rules of ``tivne.train`` before Hydra writes into the folder.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from typing import Any
 
 from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
+from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
@@ -35,12 +39,15 @@ from tivne.config import (
     MeshEvalSettings,
     RenderConfig,
     ReportConfig,
+    RunDirConfig,
     default_tree,
 )
+from tivne.slam.checkpoint import check_resumable
+from tivne.slam.outputs import RunDir, check_run_dir
 from tivne.utils import RunFailed
 
 EXIT_BAD_INPUT = 2
-BAD_INPUT: tuple[type[BaseException], ...] = (DatasetError, ConfigError, MissingMandatoryValue, FileNotFoundError, PermissionError)
+BAD_INPUT: tuple[type[BaseException], ...] = (DatasetError, ConfigError, MissingMandatoryValue, OSError)
 THREADS_RESOLVER = "tivne.threads_per_job"
 
 
@@ -159,12 +166,39 @@ def one_line_errors(task: Callable[..., Any]) -> Callable[..., Any]:
         except RunFailed as exc:
             fail(error_line(exc), exc.exit_code)
         except Exception as exc:  # noqa: BLE001 -- only bad input is turned into one line
-            cause = bad_input_cause(exc)
-            if cause is None:
-                raise
-            fail(error_line(cause), EXIT_BAD_INPUT)
+            report_bad_input(exc)
+            raise
 
     return wrapper
+
+
+def report_bad_input(exc: BaseException) -> None:
+    """Exit (see :func:`fail`) with :func:`error_line` and status 2 when ``exc`` is bad input; otherwise do nothing."""
+    cause = bad_input_cause(exc)
+    if cause is not None:
+        fail(error_line(cause), EXIT_BAD_INPUT)
+
+
+class RunDirGuard(Callback):
+    """Hydra callback of ``tivne.train`` (``hydra.callbacks`` in conf/config.yaml): the rules of
+    :func:`tivne.slam.outputs.check_run_dir` before Hydra writes ``.hydra/`` and the log into the run
+    directory, so a refused folder keeps its earlier config and results untouched, and a resume is
+    compared with the config the run was started with."""
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        try:
+            run = RunDir(OmegaConf.select(config, "hydra.run.dir"))
+            options = RunDirConfig.from_mapping({key: config.get(key, False) for key in ("resume", "overwrite")})
+            saved = current = None
+            if options.resume and run.config.is_file():
+                saved = OmegaConf.to_container(OmegaConf.load(run.config), resolve=False)
+                current = {k: v for k, v in OmegaConf.to_container(config, resolve=False).items() if k != "hydra"}
+            check_run_dir(run, options.resume, options.overwrite, saved, current)
+            if options.resume:
+                check_resumable(run.checkpoint)
+        except Exception as exc:  # noqa: BLE001 -- bad input becomes one line; anything else is a bug
+            report_bad_input(exc)
+            raise
 
 
 def mesh_settings(node: DictConfig) -> MeshConfig:

@@ -272,12 +272,17 @@ class MeshConfig(Settings):
 class OutputConfig(Settings):
     """image_every: log rendered images every n frames (0 = never). save_every: rewrite
     trajectory.txt every n frames, so an interrupted run keeps its poses (0 = only at the end).
-    allocation_stride: back-project every n-th pixel when allocating voxels. evaluate: compute the
-    mesh metrics against the dataset's GT geometry at the end (where it has one)."""
+    checkpoint_every: write the whole state of the run (map, optimiser, keyframes, poses, tracker,
+    masks, RNGs, position) to checkpoints/slam.pt every n frames and before the final pass, so a
+    crashed run continues from there with ``resume=true`` (0 = only at the end and on SIGINT /
+    SIGTERM; each one costs a write of the stored keyframes). allocation_stride: back-project every
+    n-th pixel when allocating voxels. evaluate: compute the mesh metrics against the dataset's GT
+    geometry at the end (where it has one)."""
 
     section: ClassVar[str] = "output"
     image_every: int = setting(50, ge=0)
     save_every: int = setting(25, ge=0)
+    checkpoint_every: int = setting(50, ge=0)
     allocation_stride: int = setting(4, ge=1)
     evaluate: bool = True
 
@@ -310,6 +315,22 @@ class MeshEvalSettings(Settings):
     render_every: int = setting(10, ge=0)
     render_stride: int = setting(2, ge=1)
     seed: int = setting(0, ge=0)
+
+
+@dataclass(frozen=True)
+class RunDirConfig(Settings):
+    """What ``tivne.train`` does with a run directory (``hydra.run.dir``) that already holds results
+    (trajectory.txt, metrics.json, checkpoints/, meshes/, renders/): refuse it (default), continue
+    it from its last checkpoint (resume=true; the config must be the same) or clear those results
+    first (overwrite=true). Top-level keys: ``resume=true``, not ``run_dir.resume``."""
+
+    section: ClassVar[str] = ""
+    resume: bool = False
+    overwrite: bool = False
+
+    def check(self) -> None:
+        if self.resume and self.overwrite:
+            raise ConfigError("resume=true and overwrite=true: choose one (resume continues the run, overwrite clears it)")
 
 
 @dataclass(frozen=True)
@@ -358,5 +379,5 @@ class ReportConfig(Settings):
 
 SECTIONS: tuple[type[Settings], ...] = (
     RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, OdometryConfig, MappingConfig, KeyframeConfig,
-    SamplerConfig, MeshConfig, OutputConfig, TrainerConfig, ObjectiveConfig,
+    SamplerConfig, MeshConfig, OutputConfig, TrainerConfig, ObjectiveConfig, RunDirConfig,
 )

@@ -4,7 +4,8 @@
                              [settings.window_s=0.5] [settings.threshold_m=0.05] ...
 
 The dataset and the render settings are rebuilt from the run's own config (run_dir/.hydra/config.yaml);
-see :mod:`tivne.evaluation` for what is measured. Mesh times outside the run's recorded range are
+see :mod:`tivne.evaluation` for what is measured. A run without trajectory.txt is refused (its
+metrics.json keeps what it has). Mesh times outside the run's recorded range are
 refused before anything is written. The new metrics are printed as JSON. Errors are one
 ``error: ...`` line, exit status 2.
 """
@@ -32,6 +33,9 @@ def main(cfg: DictConfig) -> None:
     settings = MeshEvalSettings.from_mapping(OmegaConf.to_container(cfg.settings, resolve=True))
     run = RunDir(cfg.run_dir)
     view, render = run_sequence(run.root)
+    if not run.trajectory.is_file():  # evaluating it would replace the ATE metrics.json holds by nulls
+        raise FileNotFoundError(f"{run.trajectory}: not found; the run has no poses to evaluate (resume=true continues an interrupted run)")
+    run.check_writable()  # before the work, not after: metrics.json will be written there
     metrics = evaluate_run(run.root, view, mesh, settings, render, cfg.frame, bool(cfg.prefer_mesh_files))
     run.merge_metrics(metrics)
     if metrics.get("ate_partial"):

@@ -24,6 +24,7 @@ from tivne.field.networks import time_to_tau
 from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
 from tivne.slam.checkpoint import camera_centres, load_checkpoint
 from tivne.slam.outputs import RunDir
+from tivne.utils import require_device
 
 register_defaults()
 
@@ -36,13 +37,15 @@ def mesh_run(
     Returns:
         (time s, vertices, faces, path) per mesh.
     Raises:
-        FileNotFoundError: no run dir; DatasetError: no or a bad checkpoint; ConfigError: bad times.
+        FileNotFoundError: no run dir; DatasetError: no or a bad checkpoint; ConfigError: bad times
+        or a device this torch does not have; OSError: a mesh cannot be written (naming it).
     """
+    device = require_device(device) if device else ("cuda" if torch.cuda.is_available() else "cpu")
     run = RunDir(run_dir)
     if not run.root.is_dir():
         raise FileNotFoundError(f"{run.root}: run directory not found")
-    device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     field, meta = load_checkpoint(run.checkpoint, device=device)
+    run.check_writable()  # before marching cubes, not after
     written = []
     for ts in select_mesh_times(meta["timestamps"], list(cfg.times) or None, every):
         tau = time_to_tau(ts, meta["t0"], field.time_scale)

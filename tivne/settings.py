@@ -129,9 +129,17 @@ class Settings:
 
 
 def default_tree(sections: tuple[type[Settings], ...]) -> dict[str, Any]:
-    """{section: {key: default}} of the given sections: the base node the YAML presets override."""
+    """{section: {key: default}} of the given sections (a section-less class puts its keys at the
+    top level): the base node the YAML presets override."""
 
     def plain(v: Any) -> Any:
         return list(v) if isinstance(v, tuple) else v
 
-    return {cls.section: {f.name: plain(getattr(cls(), f.name)) for f in dataclasses.fields(cls)} for cls in sections}
+    tree: dict[str, Any] = {}
+    for cls in sections:
+        values = {f.name: plain(getattr(cls(), f.name)) for f in dataclasses.fields(cls)}
+        if cls.section:
+            tree[cls.section] = values
+        else:
+            tree.update(values)
+    return tree

@@ -4,6 +4,12 @@ The only place that reads the Hydra config: it checks every section against :mod
 before any data is read, composes the typed stages and hands them to the Lightning trainer. It
 returns the ``objective`` (:mod:`tivne.evaluation.objective`), the value a sweeper minimises
 (``-m hydra/sweeper=optuna``, see ``conf/experiment/search_tracking.yaml``).
+
+The run directory (``hydra.run.dir``): one that already holds results is refused unless
+``resume=true`` (continue an interrupted run from ``checkpoints/slam.pt``: same overrides, same
+folder; the frames it processed are skipped) or ``overwrite=true`` (its results are cleared first);
+see :func:`tivne.slam.outputs.check_run_dir`. On the command line the check runs before Hydra
+writes anything into the folder (:class:`tivne.cli.RunDirGuard`).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from tivne.config import (
     OdometryConfig,
     OutputConfig,
     RenderConfig,
+    RunDirConfig,
     RuntimeConfig,
     SamplerConfig,
     TrackingConfig,
@@ -44,10 +51,11 @@ from tivne.evaluation.objective import objective_value
 from tivne.masks.base import MaskProvider
 from tivne.meshing import select_mesh_times
 from tivne.render.samplers import PixelSampler
+from tivne.slam.checkpoint import load_resume_state
 from tivne.slam.keyframes import KeyframePolicy
-from tivne.slam.outputs import RunDir, tensorboard_hparams
+from tivne.slam.outputs import RunDir, check_run_dir, tensorboard_hparams
 from tivne.slam.system import TivNeSLAM
-from tivne.utils import RunFailed, RunInterrupted, configure_runtime, interrupt_signals
+from tivne.utils import RunFailed, RunInterrupted, configure_runtime, interrupt_signals, require_device
 
 register_defaults()
 
@@ -101,7 +109,31 @@ def build_system(
         output=s.output,
         run_dir=run_dir,
         seed=int(cfg.seed),
+        run_config=run_config(cfg),
     )
+
+
+def run_config(cfg: DictConfig) -> dict[str, Any]:
+    """The composed config as plain values, without Hydra's own node: what a resumed run must repeat."""
+    values = plain(cfg)
+    values.pop("hydra", None)
+    return values
+
+
+def run_dir_options(cfg: DictConfig) -> RunDirConfig:
+    """The checked top-level ``resume`` / ``overwrite`` keys."""
+    return RunDirConfig.from_mapping({key: cfg.get(key, False) for key in ("resume", "overwrite")})
+
+
+def prepare_run_dir(cfg: DictConfig, options: RunDirConfig, run_dir: str | Path, timestamps) -> dict[str, Any] | None:
+    """Once the run is sure to start: clear the folder for overwrite, or for resume return the
+    checkpoint to continue from (checked against this config and the sequence's ``timestamps``)."""
+    run = RunDir(run_dir)
+    if options.resume:
+        return load_resume_state(run.checkpoint, run_config(cfg), timestamps)
+    if options.overwrite:
+        run.clear_results()
+    return None
 
 
 def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None) -> dict[str, Any]:
@@ -111,12 +143,18 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     :class:`tivne.masks.base.RecordingMasks` around the configured one).
     """
     settings = TrainSettings.from_config(cfg)  # before any data is read
+    options = run_dir_options(cfg)
+    device = require_device(settings.trainer.accelerator)
+    check_run_dir(RunDir(run_dir), options.resume, options.overwrite)  # results there are refused, nothing is changed yet
     runtime = configure_runtime(settings.runtime.threads, settings.runtime.tune_allocator)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     dataset = instantiate(cfg.dataset)
     datamodule = SequenceDataModule(dataset, **plain(cfg.data))
     select_mesh_times(datamodule.view.timestamps, list(settings.mesh.times) or None)  # refuse bad times before the run
+    resume = prepare_run_dir(cfg, options, run_dir, datamodule.view.timestamps)
     system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks)
+    if resume is not None:
+        datamodule.start = system.resume_from(resume)
     logger = TensorBoardLogger(save_dir=str(run_dir), name="", version=RunDir.TENSORBOARD, default_hp_metric=False)
     trainer = L.Trainer(
         max_epochs=1,
@@ -133,7 +171,12 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     )
     try:
         with interrupt_signals():
-            trainer.fit(system, datamodule=datamodule)
+            if datamodule.start < len(datamodule.view):
+                trainer.fit(system, datamodule=datamodule)
+            else:  # every frame was processed before the crash: the final pass and the results are left
+                system.to(device)
+                system.on_train_start()
+                system.on_train_end()
             extra = {"threads": runtime["threads"]}
             if settings.output.evaluate:
                 extra |= evaluate_run(Path(run_dir), datamodule.view, settings.mesh, render=settings.render)

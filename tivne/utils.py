@@ -7,8 +7,11 @@ import ctypes
 import ctypes.util
 import signal
 import threading
+from collections.abc import Iterator
 
 import torch
+
+from tivne.settings import ConfigError
 
 # glibc mallopt parameters
 _M_TRIM_THRESHOLD = -1
@@ -59,15 +62,23 @@ class RunInterrupted(BaseException):
         return 128 + self.signum
 
 
+# A signal that arrives inside :func:`deferred_interrupts` waits here until the block ends.
+_deferral: dict[str, int | None] = {"depth": 0, "pending": None}
+
+
 @contextlib.contextmanager
 def interrupt_signals(signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)):
     """Within the block, the given signals raise :class:`RunInterrupted` (the previous handlers
-    come back afterwards); outside the main thread this is a no-op."""
+    come back afterwards) -- at once, or at the end of a :func:`deferred_interrupts` block;
+    outside the main thread this is a no-op."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def handler(signum, frame):
+        if _deferral["depth"] and _deferral["pending"] is None:
+            _deferral["pending"] = signum  # the block ends first; a second signal does not wait
+            return
         raise RunInterrupted(signum)
 
     previous = {s: signal.signal(s, handler) for s in signums}
@@ -76,6 +87,43 @@ def interrupt_signals(signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
+
+
+@contextlib.contextmanager
+def deferred_interrupts() -> Iterator[None]:
+    """Within the block, a first SIGINT / SIGTERM (under :func:`interrupt_signals`) is held until
+    the block ends and raised there, so the state it leaves is whole (one frame of a run: a
+    checkpoint written on the interruption can be resumed); a second one is raised at once."""
+    _deferral["depth"] += 1
+    try:
+        yield
+    finally:
+        _deferral["depth"] -= 1
+        pending = _deferral["pending"]
+        if not _deferral["depth"] and pending is not None:
+            _deferral["pending"] = None
+            raise RunInterrupted(pending)
+
+
+def interrupt_pending() -> bool:
+    """Whether a signal is being held by :func:`deferred_interrupts` (the state is mid-step)."""
+    return _deferral["pending"] is not None
+
+
+def require_device(device: str) -> str:
+    """``device`` ('cpu', 'cuda', 'cuda:1', 'gpu', 'auto') checked against this torch build; 'gpu'
+    means 'cuda' and 'auto' picks one. Raises :class:`ConfigError` (one line) when CUDA is asked
+    for and absent."""
+    name = str(device).strip().lower()
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    name = "cuda" + name[3:] if name.startswith("gpu") else name
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        build = "a CPU-only build" if torch.version.cuda is None else "no CUDA device is visible"
+        raise ConfigError(f"device={device}: CUDA is not available (torch {torch.__version__}, {build}); use device=cpu")
+    if not (name == "cpu" or name.startswith("cuda")):
+        raise ConfigError(f"device={device}: must be cpu, cuda[:N], gpu or auto")
+    return name
 
 
 class RunFailed(RuntimeError):

@@ -137,3 +137,20 @@ def test_a_run_without_usable_depth_fails_with_one_line_not_an_identity_trajecto
     assert sum(line.startswith("warning: frame") for line in out.stderr.splitlines()) == 4
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert metrics["frames_without_tracking"] == 4  # written before the refusal
+
+
+def test_overwrite_clears_the_old_results_first(tmp_path):
+    run(compose_cfg("mesh.times=[0.0,0.1]"), tmp_path)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    (tmp_path / "metrics.json").write_text(json.dumps(metrics | {"stale_key": 1}))
+    old_meshes = sorted(p.name for p in (tmp_path / "meshes").iterdir())
+    from tivne.slam.outputs import RunDirError
+
+    with pytest.raises(RunDirError, match="already holds results"):
+        run(compose_cfg(), tmp_path)
+    assert json.loads((tmp_path / "metrics.json").read_text())["stale_key"] == 1  # refused: nothing touched
+    metrics = run(compose_cfg("overwrite=true", "output.image_every=0"), tmp_path)
+    assert "stale_key" not in json.loads((tmp_path / "metrics.json").read_text()) and metrics["complete"] is True
+    meshes = sorted(p.name for p in (tmp_path / "meshes").iterdir())
+    assert old_meshes == ["mesh_t0.000.ply", "mesh_t0.100.ply"] and meshes == ["mesh_t0.000.ply", "mesh_t0.133.ply"]
+    assert len(list((tmp_path / "tb").glob("events.*"))) == 1  # the old run's events went too

@@ -36,3 +36,37 @@ def test_configure_runtime_sets_threads():
         assert applied == {"threads": 1, "allocator_tuned": False} and torch.get_num_threads() == 1
     finally:
         torch.set_num_threads(before)
+
+
+def test_a_signal_inside_deferred_interrupts_waits_for_the_end_of_the_block():
+    import signal
+
+    from tivne.utils import RunInterrupted, deferred_interrupts, interrupt_pending, interrupt_signals
+
+    reached = []
+    with interrupt_signals(), pytest.raises(RunInterrupted) as info:
+        with deferred_interrupts():
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert interrupt_pending()
+            reached.append("end of the block")  # the state is whole when the signal takes effect
+    assert reached == ["end of the block"] and info.value.exit_code == 143 and not interrupt_pending()
+    with interrupt_signals(), pytest.raises(RunInterrupted):  # a second signal does not wait
+        with deferred_interrupts():
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGINT)
+            reached.append("never")
+    assert reached == ["end of the block"] and not interrupt_pending()
+
+
+def test_require_device():
+    import torch
+
+    from tivne.config import ConfigError
+    from tivne.utils import require_device
+
+    assert require_device("cpu") == "cpu" and require_device("auto") in ("cpu", "cuda")
+    with pytest.raises(ConfigError, match="must be cpu"):
+        require_device("tpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="device=gpu: CUDA is not available"):
+            require_device("gpu")

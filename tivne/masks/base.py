@@ -61,6 +61,14 @@ class MaskProvider:
         masks grew. Default: masks are final."""
         return 0
 
+    def state_dict(self) -> dict:
+        """What the provider carries from frame to frame (tensors, numbers, lists; no numpy), for a
+        run's checkpoint. Default: nothing (a stateless provider)."""
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Continue from :meth:`state_dict`'s result (a resumed run). Default: nothing to restore."""
+
 
 class NoMasks(MaskProvider):
     """No motion masks: uniform sampling, no offset loss."""
@@ -98,6 +106,12 @@ class RecordingMasks(MaskProvider):
 
     def revise(self, keyframes: list, current, K: torch.Tensor) -> int:
         return self.inner.revise(keyframes, current, K)
+
+    def state_dict(self) -> dict:
+        return self.inner.state_dict()
+
+    def load_state_dict(self, state: dict) -> None:
+        self.inner.load_state_dict(state)
 
     def __call__(self, frame: Frame, context: MaskContext | None) -> torch.Tensor | None:
         mask = self.inner(frame, context)

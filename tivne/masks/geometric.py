@@ -114,6 +114,23 @@ class GeometricMasks(MaskProvider):
         self.timings_ms: list[float] = []
         self.last_debug: dict[str, np.ndarray] = {}
 
+    def state_dict(self) -> dict:
+        """The earlier frames (frame number, low-resolution depth, pose), the previous mask and its
+        time: what the next frame is tested against."""
+        return {
+            "history": [(int(k), d.detach().cpu(), pose.detach().cpu()) for k, d, pose in self.history],
+            "previous": None if self.previous is None else torch.from_numpy(self.previous.copy()),
+            "previous_tau": self._previous_tau,
+            "timings_ms": list(self.timings_ms),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.history = [(int(k), d, pose) for k, d, pose in state.get("history", [])]
+        previous = state.get("previous")
+        self.previous = None if previous is None else previous.numpy().copy()
+        self._previous_tau = state.get("previous_tau")
+        self.timings_ms = list(state.get("timings_ms", []))
+
     def reference_tau(self, context: MaskContext) -> float:
         if self.reference == "frame":
             return float(context.tau)

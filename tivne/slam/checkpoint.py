@@ -1,9 +1,23 @@
-"""Saving and loading a finished (or interrupted) run: the field, its construction arguments and the trajectory."""
+"""A run's checkpoint, ``checkpoints/slam.pt``: the field, its construction arguments and the
+trajectory (what ``tivne.mesh`` and ``tivne.evaluate`` read), plus the whole state of the run
+(``resume``) so that ``tivne.train ... resume=true`` continues an interrupted run where it stood.
+
+The resume state is taken between two frames (every ``output.checkpoint_every`` frames, before the
+final pass, on SIGINT / SIGTERM) and holds everything the next frame depends on: the map optimiser
+(Adam's moments, padded to E), the keyframe store, the per-frame pose records, the odometry
+reference, the motion model's poses, the mask provider's state, counters and timers, every RNG and
+the position in the stream. Restored, a run continues as the uninterrupted one would have.
+
+Every file is written atomically; a missing, truncated or foreign file is one :class:`DatasetError`
+line, never a deserialiser's traceback.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import random
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -11,6 +25,15 @@ import torch
 from data_modules.frame import DatasetError
 from data_modules.io import atomic_write
 from tivne.field.networks import TimeVaryingField
+from tivne.masks.base import MaskProvider
+from tivne.render.rays import View
+from tivne.slam.frontend import Tracker
+from tivne.slam.keyframes import KeyframeDatabase, view_from_state, view_state
+from tivne.slam.mapping import Mapper
+from tivne.slam.outputs import RunDirError, config_differences, describe_differences
+from tivne.slam.trajectory import Trajectory
+
+FORMAT = 2  # 1: field + trajectory; 2: + the resume state and the run's config
 
 
 def save_checkpoint(
@@ -21,46 +44,77 @@ def save_checkpoint(
     poses: torch.Tensor,
     t0: float,
     extra: dict[str, Any] | None = None,
+    resume: dict[str, Any] | None = None,
+    config: dict[str, Any] | None = None,
 ) -> Path:
     """Write the field and trajectory atomically (tmp file + rename).
 
     Args:
         field_kwargs: the keyword arguments the field was built with (rebuilds it on load).
         timestamps: (N,) seconds of the processed frames; poses: (N, 4, 4) c2w; t0: the time of τ = 0.
+        resume: :func:`run_state` (None: a checkpoint that cannot be resumed).
+        config: the run's composed config (plain values), which a resumed run must repeat.
+    Raises:
+        OSError: naming ``path`` (full disk, read-only folder); the old file stays as it was.
     """
     payload = {
-        "format": 1,
+        "format": FORMAT,
         "field_kwargs": dict(field_kwargs),
         "field_state": {k: v.detach().cpu() for k, v in field.state_dict().items()},
         "timestamps": [float(t) for t in timestamps],
         "poses": poses.detach().cpu().double(),
         "t0": float(t0),
         "extra": extra or {},
+        "config": config,
+        "resume": None if resume is None else to_device(resume, "cpu"),
     }
-    return atomic_write(path, lambda tmp: torch.save(payload, tmp))
+    return atomic_write(path, lambda tmp: torch_save(payload, tmp))
 
 
-def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tuple[TimeVaryingField, dict[str, Any]]:
-    """Rebuild the field from a checkpoint; returns (field in eval mode, payload without the state)."""
+def torch_save(payload: Any, path: Path) -> None:
+    """torch.save through a Python file: a full disk is then an OSError (ENOSPC), not a RuntimeError."""
+    with open(path, "wb") as fh:
+        torch.save(payload, fh)
+
+
+def read_checkpoint(path: str | Path, mmap: bool = False) -> dict[str, Any]:
+    """The payload of a checkpoint file, or a one-line DatasetError naming it (missing, truncated,
+    not a TivNe checkpoint). ``mmap``: map the tensors instead of reading them (the field alone of
+    a file that also holds the keyframes)."""
     path = Path(path)
     if not path.is_file():
         raise DatasetError(path, "checkpoint not found")
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # a truncated or foreign file
-        raise DatasetError(path, f"not a readable TivNe checkpoint ({type(exc).__name__})") from None
+        payload = torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
+    except Exception as exc:  # noqa: BLE001 -- a truncated or foreign file, whatever the reader says
+        raise DatasetError(path, f"not a readable TivNe checkpoint (truncated or another kind of file: {type(exc).__name__})") from None
+    if not isinstance(payload, dict) or not {"field_kwargs", "field_state", "timestamps"} <= set(payload):
+        raise DatasetError(path, "not a TivNe checkpoint (no field state)")
+    return payload
+
+
+def load_field_state(field: TimeVaryingField, state: dict[str, torch.Tensor]) -> None:
+    """Load a field state dict into ``field`` (its grid grows to the saved size first)."""
+    state = dict(state)
+    field.grid.load_sparse_state({k[len("grid."):]: v for k, v in state.items() if k.startswith("grid.")})
+    for name in ("voxel_hits", "dynamic_keys", "dynamic_tau"):  # format-1 files from before hit counts
+        state.setdefault(f"grid.{name}", getattr(field.grid, name))
+    field.load_state_dict(state)
+
+
+def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tuple[TimeVaryingField, dict[str, Any]]:
+    """Rebuild the field from a checkpoint; returns (field in eval mode, payload without the field
+    and resume state)."""
+    path = Path(path)
+    payload = read_checkpoint(path, mmap=True)
     try:
         field = TimeVaryingField(**payload["field_kwargs"])
-        state = dict(payload["field_state"])
-        field.grid.load_sparse_state({k[len("grid."):]: v for k, v in state.items() if k.startswith("grid.")})
-        for name in ("voxel_hits", "dynamic_keys", "dynamic_tau"):  # format-1 files from before hit counts
-            state.setdefault(f"grid.{name}", getattr(field.grid, name))
-        field.load_state_dict(state)
+        load_field_state(field, payload["field_state"])
     except (KeyError, TypeError, RuntimeError) as exc:  # written by an incompatible version
         first_line = str(exc).strip().splitlines()[-1].strip()
         raise DatasetError(path, f"checkpoint does not match this version of the field ({first_line})") from None
     field.to(device).eval()
-    meta = {k: v for k, v in payload.items() if k != "field_state"}
+    meta = {k: v for k, v in payload.items() if k not in ("field_state", "resume")}
     return field, meta
 
 
@@ -70,3 +124,142 @@ def camera_centres(meta: dict[str, Any]) -> np.ndarray:
     if poses is None:
         return np.zeros((0, 3))
     return np.asarray(torch.as_tensor(poses, dtype=torch.float64)[:, :3, 3])
+
+
+# ------------------------------------------------------------------------------------ resume
+
+
+class ResumableRun(Protocol):
+    """What :func:`run_state` reads of a running system (:class:`tivne.slam.system.TivNeSLAM`)."""
+
+    field: TimeVaryingField
+    mapper: Mapper
+    db: KeyframeDatabase
+    trajectory: Trajectory
+    tracker: Tracker
+    masks: MaskProvider
+    tracked: list[torch.Tensor]
+    t0: float | None
+    last_mapped_tau: float
+    last_view: View | None
+    final_pass_done: bool
+    counts: Any
+    timers: Any
+    generator: torch.Generator
+
+
+def global_rng_state() -> dict[str, Any]:
+    """torch (CPU and CUDA), numpy and Python RNG states, in types a weights-only load accepts."""
+    kind, keys, pos, has_gauss, gauss = np.random.get_state()
+    return {
+        "torch": torch.get_rng_state(),
+        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() and torch.cuda.is_initialized() else None,
+        "numpy": {"kind": kind, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos), "has_gauss": int(has_gauss), "gauss": float(gauss)},
+        "python": random.getstate(),
+    }
+
+
+def set_global_rng_state(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"].cpu())
+    if state.get("cuda") is not None and torch.cuda.is_available() and len(state["cuda"]) == torch.cuda.device_count():
+        torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda"]])
+    n = state["numpy"]
+    np.random.set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["gauss"]))
+    version, internal, gauss = state["python"]
+    random.setstate((version, tuple(internal), gauss))
+
+
+def run_state(run: ResumableRun) -> dict[str, Any]:
+    """Everything the next frame of ``run`` depends on but the field (saved beside it)."""
+    last = run.last_view
+    if last is None:
+        last_state: Any = None
+    elif run.db.views and last is run.db.views[-1]:
+        last_state = "keyframe"  # the same object: keep it one
+    else:
+        last_state = view_state(last)
+    return {
+        "position": len(run.trajectory),
+        "final_pass_done": bool(run.final_pass_done),
+        "mapper": run.mapper.state_dict(),
+        "keyframes": run.db.state_dict(),
+        "trajectory": run.trajectory.state_dict(),
+        "tracker": run.tracker.state_dict(),
+        "masks": run.masks.state_dict(),
+        "motion": [p.detach() for p in run.tracked],
+        "t0": run.t0,
+        "last_mapped_tau": float(run.last_mapped_tau),
+        "last_view": last_state,
+        "counts": dataclasses.asdict(run.counts),
+        "timers": dataclasses.asdict(run.timers),
+        "generator": run.generator.get_state(),
+        "rng": global_rng_state(),
+    }
+
+
+def restore_run_state(run: ResumableRun, payload: dict[str, Any], device: torch.device | str) -> dict[str, Any]:
+    """Put ``run`` (freshly built from the same config, on ``device``) where the checkpoint
+    ``payload`` left it. Returns the global RNG state, to be set just before the next frame (the
+    data loader draws from the torch RNG when it starts)."""
+    state = payload["resume"]
+    rng = state["rng"]
+    load_field_state(run.field, to_device(payload["field_state"], device))
+    state = to_device({k: v for k, v in state.items() if k not in ("rng", "generator")}, device)
+    run.mapper.load_state_dict(state["mapper"])  # after the field: E has its saved rows
+    run.db.load_state_dict(state["keyframes"])
+    run.trajectory.load_state_dict(state["trajectory"])
+    run.tracker.load_state_dict(state["tracker"])
+    run.masks.load_state_dict(state["masks"])
+    run.tracked = list(state["motion"])
+    run.t0, run.last_mapped_tau = state["t0"], float(state["last_mapped_tau"])
+    last = state["last_view"]
+    run.last_view = run.db.views[-1] if last == "keyframe" else None if last is None else view_from_state(last)
+    run.final_pass_done = bool(state["final_pass_done"])
+    run.counts = type(run.counts)(**state["counts"])
+    run.timers = type(run.timers)(**state["timers"])
+    run.generator.set_state(payload["resume"]["generator"].cpu())
+    return rng
+
+
+def to_device(tree: Any, device: torch.device | str) -> Any:
+    """Every tensor of a nested dict / list / tuple moved to ``device`` (other values as they are)."""
+    if isinstance(tree, torch.Tensor):
+        return tree.to(device)
+    if isinstance(tree, dict):
+        return {k: to_device(v, device) for k, v in tree.items()}
+    if isinstance(tree, (list, tuple)):
+        return type(tree)(to_device(v, device) for v in tree)
+    return tree
+
+
+def resume_state_of(path: str | Path, payload: dict[str, Any]) -> dict[str, Any]:
+    """The resume state of a checkpoint payload, or a one-line RunDirError when it has none."""
+    state = payload.get("resume")
+    if not isinstance(state, dict) or "position" not in state:
+        raise RunDirError(path, "holds no resume state (written by an older version or during the final pass); run without resume=true")
+    return state
+
+
+def check_resumable(path: str | Path) -> None:
+    """Refuse (one line) a checkpoint that cannot be resumed: missing, unreadable or without a
+    resume state. Cheap (the tensors are mapped, not read): for a check before anything is written."""
+    resume_state_of(path, read_checkpoint(path, mmap=True))
+
+
+def load_resume_state(path: str | Path, config: dict[str, Any], timestamps: np.ndarray) -> dict[str, Any]:
+    """The checkpoint payload to resume a run from, checked against this run: the same ``config``
+    (but for where it runs) and a sequence whose first frames are the ones already processed
+    (``timestamps``: the whole stream's, seconds). Raises one-line DatasetError / RunDirError."""
+    path = Path(path)
+    payload = read_checkpoint(path)
+    state = resume_state_of(path, payload)
+    if payload.get("config") is not None:
+        differ = config_differences(payload["config"], config)
+        if differ:
+            raise RunDirError(path, "resume=true with a different config: " + describe_differences(differ))
+    done = [float(t) for t in payload["timestamps"]]
+    position = int(state["position"])
+    stream = [float(t) for t in timestamps[:position]]
+    if position != len(done) or position > len(timestamps) or not np.allclose(done, stream, rtol=0, atol=1e-6):
+        raise RunDirError(path, f"its {len(done)} processed frames are not the first frames of this sequence ({len(timestamps)} frames)")
+    return payload

@@ -140,6 +140,24 @@ class Tracker:
         return True
 
 
+    def state_dict(self) -> dict:
+        """The odometry reference (frame id, pose, its pyramid as built from the full-precision
+        frame), or None before the first frame."""
+        ref = self.reference
+        if ref is None:
+            return {"reference": None}
+        levels = [{f.name: getattr(level, f.name) for f in dataclasses.fields(level)} for level in ref.pyramid]
+        return {"reference": {"frame_id": ref.frame_id, "pose": ref.pose, "pyramid": levels}}
+
+    def load_state_dict(self, state: dict) -> None:
+        ref = state.get("reference")
+        self._current = None  # rebuilt by the next frame's tracking
+        if ref is None:
+            self.reference = None
+            return
+        self.reference = Reference(int(ref["frame_id"]), [PyramidLevel(**level) for level in ref["pyramid"]], ref["pose"])
+
+
 def odometry_stats(result: OdometryResult) -> dict[str, float]:
     """The odometry's quality signals as log scalars."""
     return {

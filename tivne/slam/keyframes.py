@@ -52,6 +52,23 @@ class KeyframeDatabase:
     def frame_ids(self) -> list[int]:
         return [v.frame_id for v in self.views]
 
+    def state_dict(self) -> dict:
+        """The stored views as they are (uint8 colour, depth, masks, refined poses, frame ids)."""
+        return {"views": [view_state(v) for v in self.views]}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.views = [view_from_state(v) for v in state["views"]]
+
+
+def view_state(view: View) -> dict:
+    """A :class:`View` as plain tensors and numbers (for a checkpoint)."""
+    return {"frame_id": int(view.frame_id), "tau": float(view.tau), "rgb": view.rgb.detach(), "depth": view.depth.detach(),
+            "dynamic": None if view.dynamic is None else view.dynamic.detach(), "pose": view.pose.detach()}
+
+
+def view_from_state(state: dict) -> View:
+    return View(int(state["frame_id"]), float(state["tau"]), state["rgb"], state["depth"], state["dynamic"], state["pose"])
+
 
 def overlap_ratios(
     uv: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, c2w: torch.Tensor, kf_c2w: torch.Tensor, width: int, height: int

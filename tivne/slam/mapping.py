@@ -30,6 +30,15 @@ class Mapper:
         field.grid.grow_callbacks.append(self._pad_embedding_state)
         self.steps = 0  # optimiser steps run so far (the final pass's budget is a share of them)
 
+    def state_dict(self) -> dict:
+        """The optimiser (Adam's moments, padded to E's rows, and step counts) and the steps run."""
+        return {"optimizer": self.optimizer.state_dict(), "steps": self.steps}
+
+    def load_state_dict(self, state: dict) -> None:
+        """After the field's own state (E must already have the saved number of rows)."""
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.steps = int(state["steps"])
+
     def _pad_embedding_state(self, old_rows: int, new_rows: int) -> None:
         """Keep Adam's moments aligned with E after the grid grows (new rows start from zero moments)."""
         state = self.optimizer.state.get(self.field.grid.embeddings)

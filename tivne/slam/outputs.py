@@ -13,13 +13,21 @@
 
 Every write is atomic (:func:`data_modules.io.atomic_write`): a reader sees the old file or the
 new one, and a failed write leaves neither half a file nor a temporary behind.
+
+A run directory that already holds results is refused unless the run resumes it (same config) or
+overwrites it (:meth:`RunDir.clear_results` first, so no stale mesh, render or metric mixes in):
+:func:`check_run_dir`. Refusals are :class:`RunDirError`, one line naming the folder.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import math
+import os
+import shutil
 import sys
+import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -28,8 +36,16 @@ import numpy as np
 import torch
 import trimesh
 
+from data_modules.frame import DatasetError
 from data_modules.io import atomic_write
 from data_modules.tables import write_tum_trajectory
+
+# Config keys that may differ when a run is resumed: where it runs and how the folder is treated.
+RESUME_IGNORED_KEYS = ("hydra", "resume", "overwrite")
+
+
+class RunDirError(DatasetError):
+    """A run directory that cannot be used as asked (``str()`` is one line naming it)."""
 
 
 def jsonable(value: Any) -> Any:
@@ -81,6 +97,40 @@ class RunDir:
     def report(self) -> Path:
         return self.root / self.REPORT
 
+    def results(self) -> list[Path]:
+        """The results this folder holds already (trajectory, metrics, checkpoints, meshes,
+        renders); .hydra/, logs and TensorBoard events alone are not results."""
+        found = [p for p in (self.trajectory, self.metrics) if p.exists()]
+        for folder in (self.checkpoint.parent, self.root / self.MESHES, self.root / self.RENDERS):
+            if folder.is_dir() and any(folder.iterdir()):
+                found.append(folder)
+        return found
+
+    def clear_results(self) -> list[Path]:
+        """Delete every result (and the TensorBoard events) for ``overwrite=true``; returns what went."""
+        gone = [*self.results(), self.root / self.TENSORBOARD, self.metrics.with_name(self.METRICS + ".corrupt")]
+        gone = [p for p in gone if p.exists()]
+        for p in gone:
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
+        return gone
+
+    def check_writable(self) -> None:
+        """Raise the OSError (EROFS, EACCES, ...) naming the folder when a file cannot be created in
+        it or in one of its existing result folders, or, for a folder still to be made, in its
+        nearest existing parent (ask the file system, not the mode bits: root writes whatever they say)."""
+        parent = self.root.absolute()
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        for folder in (parent, self.checkpoint.parent, self.root / self.MESHES, self.root / self.RENDERS):
+            if not folder.is_dir():
+                continue
+            try:
+                with tempfile.TemporaryFile(dir=folder, prefix=".write-test."):
+                    pass
+            except OSError as exc:
+                code = exc.errno or errno.EACCES
+                raise OSError(code, exc.strerror or os.strerror(code), str(folder)) from None
+
     def mesh_path(self, timestamp: float) -> Path:
         """meshes/mesh_t{t:.3f}.ply for a mesh at ``timestamp`` seconds."""
         return self.root / self.MESHES / f"mesh_t{timestamp:.3f}.ply"
@@ -110,6 +160,14 @@ class RunDir:
             print(f"warning: {path}: not a JSON object; kept as {path.name}.corrupt", file=sys.stderr)
             return {}
 
+    def read_metrics_quietly(self) -> dict[str, Any]:
+        """metrics.json's content, {} when absent or unreadable (nothing is moved)."""
+        try:
+            current = json.loads(self.metrics.read_text())
+        except (OSError, ValueError):
+            return {}
+        return current if isinstance(current, dict) else {}
+
     def merge_metrics(self, metrics: dict[str, Any]) -> dict[str, Any]:
         """Merge ``metrics`` into metrics.json and return the merged content.
 
@@ -136,6 +194,60 @@ class RunDir:
         if not ok:
             raise OSError(f"{path}: could not encode the image")
         return atomic_write(path, buf.tobytes())
+
+
+def check_run_dir(run: RunDir, resume: bool, overwrite: bool, saved: Mapping[str, Any] | None = None,
+                  current: Mapping[str, Any] | None = None) -> None:
+    """The rules for starting ``tivne.train`` in ``run``; raises :class:`RunDirError` or OSError.
+
+    A folder holding results is refused unless ``resume`` or ``overwrite``; ``resume`` needs a
+    checkpoint, a run that is not complete, and (when both are given) a ``current`` config equal to
+    the ``saved`` one but for :data:`RESUME_IGNORED_KEYS`. Every existing folder must be writable.
+    Nothing is changed on disk (``overwrite`` clears later, once the run is sure to start).
+    """
+    if run.root.exists() and not run.root.is_dir():
+        raise RunDirError(run.root, "run directory is a file")
+    run.check_writable()
+    if resume:
+        if not run.checkpoint.is_file():
+            raise RunDirError(run.checkpoint, "nothing to resume (no checkpoint; run without resume=true)")
+        if run.read_metrics_quietly().get("complete") is True:
+            raise RunDirError(run.root, "the run is complete; nothing to resume (overwrite=true runs it again)")
+        if saved is not None and current is not None:
+            differ = config_differences(saved, current)
+            if differ:
+                raise RunDirError(run.config, "resume=true with a different config: " + describe_differences(differ))
+        return
+    held = run.results()
+    if held and not overwrite:
+        names = ", ".join(p.name + ("/" if p.is_dir() else "") for p in held)
+        raise RunDirError(run.root, f"already holds results ({names}); resume=true continues the run, overwrite=true replaces them")
+
+
+def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """{"a": {"b": 1}} -> {"a.b": 1}."""
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping) and value:
+            flat.update(flatten(value, name + "."))
+        else:
+            flat[name] = value
+    return flat
+
+
+def config_differences(saved: Mapping[str, Any], current: Mapping[str, Any]) -> list[tuple[str, Any, Any]]:
+    """(key, saved value, current value) of every key whose value differs (a missing key is None),
+    sorted, except :data:`RESUME_IGNORED_KEYS`."""
+    a, b = flatten(saved), flatten(current)
+    keys = sorted(k for k in set(a) | set(b) if k.split(".")[0] not in RESUME_IGNORED_KEYS)
+    return [(k, a.get(k), b.get(k)) for k in keys if a.get(k) != b.get(k)]
+
+
+def describe_differences(differ: list[tuple[str, Any, Any]], limit: int = 5) -> str:
+    """``key (saved -> now), ...`` for an error line (the first ``limit`` keys and a count)."""
+    text = ", ".join(f"{k} ({a!r} -> {b!r})" for k, a, b in differ[:limit])
+    return text + (f" and {len(differ) - limit} more" if len(differ) > limit else "")
 
 
 def image_panels(rgb: torch.Tensor, depth: torch.Tensor, rgb_obs: torch.Tensor, depth_obs: torch.Tensor) -> dict[str, np.ndarray]:

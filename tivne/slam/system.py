@@ -33,13 +33,14 @@ from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
 from tivne.render.rays import View
 from tivne.render.renderer import render_image
 from tivne.render.samplers import PixelSampler
-from tivne.slam.checkpoint import save_checkpoint
+from tivne.slam.checkpoint import restore_run_state, run_state, save_checkpoint, set_global_rng_state
 from tivne.slam.frontend import Tracker
 from tivne.slam.keyframes import KeyframeDatabase, KeyframePolicy
 from tivne.slam.mapping import Mapper, final_pass
 from tivne.slam.outputs import RunDir, image_panels, tensorboard_mesh
 from tivne.slam.tracking import frozen
 from tivne.slam.trajectory import Trajectory
+from tivne.utils import deferred_interrupts, interrupt_pending
 
 
 @dataclass
@@ -86,6 +87,7 @@ class TivNeSLAM(L.LightningModule):
         output: OutputConfig,
         run_dir: str | Path,
         seed: int = 0,
+        run_config: dict[str, Any] | None = None,
     ) -> None:
         super().__init__()
         self.automatic_optimization = False
@@ -111,6 +113,11 @@ class TivNeSLAM(L.LightningModule):
         self.timers = Timers()
         self.generator = torch.Generator().manual_seed(seed)
         self.last_metrics: dict[str, Any] = {}
+        self.run_config = run_config  # saved in the checkpoint: a resumed run must repeat it
+        self.final_pass_done = False
+        self.between_frames = True  # the state is whole (a checkpoint of it can be resumed)
+        self.resume_payload: dict[str, Any] | None = None  # restored once the module is on its device
+        self.pending_rng: dict[str, Any] | None = None  # set just before the next frame
 
     # ---- Lightning plumbing -------------------------------------------------------------------
     def configure_optimizers(self):
@@ -123,8 +130,35 @@ class TivNeSLAM(L.LightningModule):
     def K(self) -> torch.Tensor:
         return self.intrinsics.K(device=self.device)
 
+    # ---- resume ---------------------------------------------------------------------------------
+    def resume_from(self, payload: dict[str, Any]) -> int:
+        """Continue from a checkpoint payload (:func:`tivne.slam.checkpoint.load_resume_state`) once
+        training starts; returns the number of frames it has processed (the stream starts there)."""
+        self.resume_payload = payload
+        return int(payload["resume"]["position"])
+
+    def on_train_start(self) -> None:
+        if self.resume_payload is not None:
+            self.pending_rng = restore_run_state(self, self.resume_payload, self.device)
+            self.resume_payload = None
+
+    def _apply_pending_rng(self) -> None:
+        if self.pending_rng is not None:
+            set_global_rng_state(self.pending_rng)
+            self.pending_rng = None
+
     # ---- the per-frame loop -------------------------------------------------------------------
     def training_step(self, frame: Frame, batch_idx: int) -> None:
+        self._apply_pending_rng()
+        with deferred_interrupts():  # SIGINT / SIGTERM take effect once the frame is whole
+            self.between_frames = False
+            self._step(frame)
+            self.between_frames = True
+        every = self.output_cfg.checkpoint_every
+        if every and len(self.trajectory) % every == 0:
+            self.save_checkpoint()
+
+    def _step(self, frame: Frame) -> None:
         start = time.perf_counter()
         k = len(self.trajectory)
         if self.t0 is None:
@@ -263,15 +297,21 @@ class TivNeSLAM(L.LightningModule):
         return self.run.write_trajectory(self.trajectory.timestamps(), self.poses())
 
     def on_train_end(self) -> None:
+        self._apply_pending_rng()
         if not len(self.trajectory):
             return
         self.write_trajectory()  # before the final pass: an interrupted pass keeps the poses
-        views = list(self.db.views)
-        if self.last_view is not None and (not views or views[-1] is not self.last_view):
-            views.append(self.last_view)
-        start = time.perf_counter()
-        final_pass(self.mapper, views, self.K, self.sampler, self.render_cfg, self.loss_weights, self.generator)
-        self.timers.refine_s = time.perf_counter() - start
+        if not self.final_pass_done:
+            if self.output_cfg.checkpoint_every:
+                self.save_checkpoint()  # a crash in the final pass resumes here, not frames back
+            views = list(self.db.views)
+            if self.last_view is not None and (not views or views[-1] is not self.last_view):
+                views.append(self.last_view)
+            start = time.perf_counter()
+            self.between_frames = False
+            final_pass(self.mapper, views, self.K, self.sampler, self.render_cfg, self.loss_weights, self.generator)
+            self.timers.refine_s = time.perf_counter() - start
+            self.final_pass_done = self.between_frames = True
         self.finalize()
 
     def finalize(self) -> dict[str, Any]:
@@ -287,18 +327,24 @@ class TivNeSLAM(L.LightningModule):
 
     def save_partial(self, reason: str) -> dict[str, Any]:
         """After an interruption: trajectory, checkpoint and metrics.json with ``complete: false``
-        (no final pass, renders or meshes: those need the whole sequence)."""
+        (no final pass, renders or meshes: those need the whole sequence). Interrupted inside a
+        frame or the final pass, the state is not whole: the last checkpoint is kept as it is (or,
+        with periodic checkpoints off, one that cannot be resumed is written for tivne.mesh)."""
         if not len(self.trajectory):
             return {}
         self.write_trajectory()
-        self.save_checkpoint()
+        whole = self.between_frames and not interrupt_pending()
+        if whole or not self.output_cfg.checkpoint_every:
+            self.save_checkpoint(resumable=whole)
         self.last_metrics = self.run.merge_metrics(self.run_metrics() | {"complete": False, "complete_reason": reason})
         return self.last_metrics
 
-    def save_checkpoint(self) -> Path:
+    def save_checkpoint(self, resumable: bool = True) -> Path:
+        """checkpoints/slam.pt: the field and trajectory, and (``resumable``) the whole run state."""
         return save_checkpoint(
             self.run.checkpoint, self.field, self.field_cfg.field_kwargs(), self.trajectory.timestamps(),
             self.poses(), self.t0, extra={"keyframes": self.db.frame_ids()},
+            resume=run_state(self) if resumable else None, config=self.run_config,
         )
 
     def run_metrics(self) -> dict[str, Any]:

@@ -57,6 +57,29 @@ class Trajectory:
     def timestamps(self) -> list[float]:
         return [r.timestamp for r in self.records]
 
+    def state_dict(self) -> dict:
+        """Every record, stacked (one tensor, not thousands, keeps a checkpoint fast): timestamps
+        (N,), keyframe ids (-1 = absolute), relative poses (N, 4, 4) in float64 with each one's
+        dtype, GT poses (N, 4, 4) float64 with theirs (None: no GT)."""
+        records = self.records
+        return {
+            "timestamps": [r.timestamp for r in records],
+            "keyframes": [-1 if r.keyframe is None else r.keyframe for r in records],
+            "relative": stack64([r.relative for r in records]),
+            "dtypes": [str(r.relative.dtype).removeprefix("torch.") for r in records],
+            "gt": stack64([torch.zeros(4, 4) if r.gt_pose is None else r.gt_pose for r in records]),
+            "gt_dtypes": [None if r.gt_pose is None else str(r.gt_pose.dtype).removeprefix("torch.") for r in records],
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        """Records as saved (float32 -> float64 -> float32 is exact, so poses come back bit for bit)."""
+        self.records = [
+            FrameRecord(float(t), None if kf < 0 else int(kf), rel.to(getattr(torch, dt)), None if gdt is None else gt.to(getattr(torch, gdt)))
+            for t, kf, rel, dt, gt, gdt in zip(
+                state["timestamps"], state["keyframes"], state["relative"], state["dtypes"], state["gt"], state["gt_dtypes"]
+            )
+        ]
+
     def ate(self, keyframe_poses: dict[int, torch.Tensor]) -> ATEResult | None:
         """SE(3)-aligned ATE over the frames that have a GT pose; None with fewer than 3 of them."""
         keep = [i for i, r in enumerate(self.records) if r.gt_pose is not None]
@@ -65,3 +88,10 @@ class Trajectory:
         est = self.poses(keyframe_poses)[keep]
         gt = torch.stack([self.records[i].gt_pose for i in keep]).detach().cpu().double()
         return absolute_trajectory_error(est.numpy(), gt.numpy(), align="se3")
+
+
+def stack64(poses: list[torch.Tensor]) -> torch.Tensor:
+    """(N, 4, 4) float64 on the CPU of N (4, 4) poses (N may be 0)."""
+    if not poses:
+        return torch.zeros(0, 4, 4, dtype=torch.float64)
+    return torch.stack([p.detach().cpu().double() for p in poses])

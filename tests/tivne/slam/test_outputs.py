@@ -6,6 +6,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from data_modules.tables import read_tum_trajectory
@@ -53,3 +54,44 @@ def test_image_panels_put_observed_left_of_rendered(tmp_path):
     assert panels["depth_error"].shape == (4, 5, 3) and int(panels["depth_error"].max()) == 255  # >= 5 cm = white
     path = RunDir(tmp_path).write_image(RunDir(tmp_path).render_path(7, "rgb"), panels["rgb"])
     assert path.name == "frame00007_rgb.png" and path.stat().st_size > 0
+
+
+def test_run_dir_rules(tmp_path):
+    from tivne.slam.outputs import RunDirError, check_run_dir
+
+    run = RunDir(tmp_path / "run")
+    check_run_dir(run, resume=False, overwrite=False)  # a new folder
+    run.root.mkdir()
+    (run.root / ".hydra").mkdir()
+    (run.root / "tb").mkdir()
+    check_run_dir(run, resume=False, overwrite=False)  # config and logs alone are not results
+    run.merge_metrics({"frames": 3, "complete": False})
+    run.checkpoint.parent.mkdir()
+    run.checkpoint.write_bytes(b"x")
+    with pytest.raises(RunDirError, match=r"already holds results \(metrics.json, checkpoints/\); resume=true .* overwrite=true"):
+        check_run_dir(run, resume=False, overwrite=False)
+    check_run_dir(run, resume=False, overwrite=True)
+    check_run_dir(run, resume=True, overwrite=False)
+    saved = {"seed": 0, "tracking": {"iters": 3, "rays": 64}, "resume": False, "hydra": {"run": {"dir": "a"}}}
+    check_run_dir(run, True, False, saved, saved | {"resume": True, "hydra": {"run": {"dir": "b"}}})  # where it runs may differ
+    with pytest.raises(RunDirError, match=r"different config: tracking.iters \(3 -> 5\), tracking.rays \(64 -> None\)"):
+        check_run_dir(run, True, False, saved, saved | {"tracking": {"iters": 5}})
+    run.merge_metrics({"complete": True})
+    with pytest.raises(RunDirError, match="the run is complete"):
+        check_run_dir(run, resume=True, overwrite=False)
+    with pytest.raises(RunDirError, match="nothing to resume"):
+        check_run_dir(RunDir(tmp_path / "other"), resume=True, overwrite=False)
+    (tmp_path / "file").write_text("")
+    with pytest.raises(RunDirError, match="run directory is a file"):
+        check_run_dir(RunDir(tmp_path / "file"), resume=False, overwrite=False)
+
+
+def test_clear_results_removes_every_result_and_nothing_else(tmp_path):
+    run = RunDir(tmp_path)
+    for rel in ("trajectory.txt", "metrics.json", "metrics.json.corrupt", "checkpoints/slam.pt", "meshes/mesh_t0.000.ply",
+                "renders/frame00000_rgb.png", "tb/events.out", ".hydra/config.yaml", "train.log"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text("old")
+    run.clear_results()
+    assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == [".hydra", ".hydra/config.yaml", "train.log"]
+    assert run.results() == []

@@ -1,0 +1,123 @@
+"""The run's checkpoint (tivne/slam/checkpoint.py): a restored system continues exactly as the
+uninterrupted one; failed writes keep the old file and leave no temporary; unreadable files are one line."""
+
+from __future__ import annotations
+
+import errno
+import shutil
+import warnings
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+from data_modules.frame import DatasetError
+from tivne.slam.checkpoint import load_checkpoint, read_checkpoint
+from tivne.slam.outputs import RunDirError
+from tivne.train import build_system, run
+
+CONF = Path(__file__).resolve().parents[3] / "conf"
+
+
+def smoke_cfg(*overrides: str):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose("config", overrides=["experiment=smoke", "dataset.cache_dir=null", *overrides])
+
+
+def feed(system, frames, start: int) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # self.log without a Trainer
+        for k, frame in enumerate(frames, start):
+            system.training_step(frame, k)
+
+
+@pytest.mark.parametrize("masks", ["geometric", "dataset"])
+def test_a_restored_system_continues_exactly_as_the_uninterrupted_one(tmp_path, tiny_cube, masks):
+    cfg = smoke_cfg(f"masks={masks}", "keyframe.every=2", "output.save_every=0", "output.checkpoint_every=3")
+    frames = [tiny_cube[k] for k in range(6)]
+    whole = build_system(cfg, tiny_cube.intrinsics, tmp_path / "whole")
+    feed(whole, frames[:3], 0)  # the checkpoint after frame 3 ...
+    shutil.copy(tmp_path / "whole" / "checkpoints" / "slam.pt", tmp_path / "at3.pt")
+    feed(whole, frames[3:], 3)  # ... and the uninterrupted rest
+
+    resumed = build_system(cfg, tiny_cube.intrinsics, tmp_path / "resumed")
+    assert resumed.resume_from(read_checkpoint(tmp_path / "at3.pt")) == 3
+    resumed.on_train_start()
+    assert len(resumed.trajectory) == 3 and resumed.db.frame_ids() == [0, 2]
+    feed(resumed, frames[3:], 3)
+    # Equal up to the last bits in which two identical uninterrupted runs differ too (threaded sums on the CPU).
+    torch.testing.assert_close(resumed.poses(), whole.poses(), atol=1e-6, rtol=0)
+    for name, value in whole.field.state_dict().items():
+        torch.testing.assert_close(resumed.field.state_dict()[name], value, atol=1e-5, rtol=0, msg=name)
+    assert resumed.mapper.steps == whole.mapper.steps and resumed.timers.per_frame[:3] == whole.timers.per_frame[:3]
+    assert torch.equal(resumed.generator.get_state(), whole.generator.get_state())
+    assert [v.frame_id for v in resumed.db.views] == [v.frame_id for v in whole.db.views]
+    assert all(a.rgb.dtype == torch.uint8 and torch.equal(a.rgb, b.rgb) for a, b in zip(resumed.db.views, whole.db.views))
+
+
+def test_a_failed_write_keeps_the_old_checkpoint_and_leaves_no_temporary(tmp_path, tiny_cube, monkeypatch):
+    cfg = smoke_cfg("output.save_every=0", "output.checkpoint_every=0")
+    system = build_system(cfg, tiny_cube.intrinsics, tmp_path)
+    feed(system, [tiny_cube[0], tiny_cube[1]], 0)
+    path = system.save_checkpoint()
+    before = path.read_bytes()
+    feed(system, [tiny_cube[2]], 2)
+
+    def full_disk(obj, f, *args, **kwargs):
+        f.write(b"partial")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(torch, "save", full_disk)
+    with pytest.raises(OSError) as info:
+        system.save_checkpoint()
+    assert info.value.errno == errno.ENOSPC and info.value.filename == str(path)  # the file asked for, not a temporary
+    monkeypatch.setattr(torch, "save", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("PytorchStreamWriter failed")))
+    with pytest.raises(RuntimeError):
+        system.save_checkpoint()
+    assert path.read_bytes() == before and sorted(p.name for p in path.parent.iterdir()) == ["slam.pt"]
+
+
+def test_unreadable_checkpoints_are_one_line(tmp_path, tiny_cube):
+    path = tmp_path / "slam.pt"
+    with pytest.raises(DatasetError, match="checkpoint not found"):
+        load_checkpoint(path)
+    path.write_bytes(b"\x00" * 100)
+    with pytest.raises(DatasetError, match="not a readable TivNe checkpoint"):
+        load_checkpoint(path)
+    torch.save({"weights": torch.zeros(3)}, path)
+    with pytest.raises(DatasetError, match="not a TivNe checkpoint"):
+        read_checkpoint(path)
+    system = build_system(smoke_cfg("output.save_every=0"), tiny_cube.intrinsics, tmp_path / "run")
+    feed(system, [tiny_cube[0]], 0)
+    good = system.save_checkpoint(resumable=False)
+    field, meta = load_checkpoint(good)  # mesh and evaluate read it
+    assert meta["timestamps"] == [0.0] and "resume" not in meta and field.grid.num_voxels > 0
+    from tivne.slam.checkpoint import check_resumable
+
+    with pytest.raises(RunDirError, match="holds no resume state"):
+        check_resumable(good)
+    good.write_bytes(good.read_bytes()[:-100])
+    with pytest.raises(DatasetError, match="not a readable TivNe checkpoint"):
+        check_resumable(good)
+
+
+def test_a_crash_in_the_final_pass_resumes_from_the_checkpoint_before_it(tmp_path, monkeypatch):
+    overrides = ("data.max_frames=4", "output.checkpoint_every=10", "output.save_every=0")
+    reference = run(smoke_cfg(*overrides), tmp_path / "reference")
+
+    def crash(*args, **kwargs):
+        raise RuntimeError("power cut")
+
+    monkeypatch.setattr("tivne.slam.system.final_pass", crash)
+    with pytest.raises(RuntimeError, match="power cut"):
+        run(smoke_cfg(*overrides), tmp_path / "crashed")
+    assert not (tmp_path / "crashed" / "metrics.json").exists()
+    assert read_checkpoint(tmp_path / "crashed" / "checkpoints" / "slam.pt")["resume"]["position"] == 4
+    monkeypatch.undo()
+    resumed = run(smoke_cfg(*overrides, "resume=true"), tmp_path / "crashed")  # no frame left: the final pass and the results
+    assert resumed["complete"] is True and resumed["frames"] == 4
+    assert resumed["ate_rmse_m"] == pytest.approx(reference["ate_rmse_m"], abs=1e-9)
+    assert len(list((tmp_path / "crashed" / "meshes").glob("*.ply"))) == 2
+    with pytest.raises(RunDirError, match="the run is complete"):
+        run(smoke_cfg(*overrides, "resume=true"), tmp_path / "crashed")
