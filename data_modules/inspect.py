@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from data_modules.errors import EXIT_BAD_INPUT, error_line, find_cause
 from data_modules.frame import DatasetError
 from data_modules.sequence import SequenceDataset, SequenceView
 from data_modules.tables import write_tum_trajectory
 
-EXIT_BAD_INPUT = 2
 SHEET_PANEL_MAX_WIDTH = 320
 
 
@@ -232,30 +232,6 @@ def reader_warnings_on_stderr() -> Iterator[None]:
             lg.disabled = disabled
 
 
-def _root_dataset_error(exc: BaseException) -> BaseException | None:
-    """The DatasetError / MissingMandatoryValue / OSError in ``exc``'s cause/context chain, if any."""
-    from omegaconf.errors import MissingMandatoryValue
-
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        seen.add(id(exc))
-        if isinstance(exc, (DatasetError, MissingMandatoryValue, OSError)):
-            return exc
-        exc = exc.__cause__ or exc.__context__
-    return None
-
-
-def _error_line(exc: BaseException) -> str:
-    from omegaconf.errors import MissingMandatoryValue
-
-    if isinstance(exc, MissingMandatoryValue):
-        key = getattr(exc, "full_key", None) or ""
-        return f"missing mandatory config value {key!r} (set it on the command line, e.g. {key}=...)" if key else str(exc).splitlines()[0]
-    if isinstance(exc, OSError) and exc.filename is not None:
-        return f"{exc.filename}: {exc.strerror or type(exc).__name__}"
-    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-
-
 def run(cfg) -> int:
     """The CLI body (Hydra-free apart from ``cfg``); returns the exit status."""
     import hydra.utils
@@ -280,10 +256,10 @@ def run(cfg) -> int:
                 write_contact_sheet(str(cfg.sheet_out), view, int(cfg.sheet_frames))
                 summary["sheet_out"] = str(cfg.sheet_out)
     except Exception as exc:  # noqa: BLE001 -- only bad-input errors are turned into one line
-        root = _root_dataset_error(exc)
+        root = find_cause(exc)
         if root is None:
             raise
-        print(f"error: {_error_line(root)}", file=sys.stderr)
+        print(error_line(root), file=sys.stderr)
         return EXIT_BAD_INPUT
     if cfg.format == "json":
         print(json.dumps(summary))

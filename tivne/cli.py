@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import functools
 import os
-import re
 import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -28,9 +27,9 @@ from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import MissingMandatoryValue
 
-from data_modules.frame import DatasetError
+from data_modules.errors import BAD_INPUT as DATA_BAD_INPUT
+from data_modules.errors import EXIT_BAD_INPUT, error_line, find_cause
 from data_modules.sequence import SequenceView
 from tivne.config import (
     SECTIONS,
@@ -46,8 +45,7 @@ from tivne.slam.checkpoint import check_resumable
 from tivne.slam.outputs import RunDir, check_run_dir
 from tivne.utils import RunFailed
 
-EXIT_BAD_INPUT = 2
-BAD_INPUT: tuple[type[BaseException], ...] = (DatasetError, ConfigError, MissingMandatoryValue, OSError)
+BAD_INPUT: tuple[type[BaseException], ...] = (*DATA_BAD_INPUT, ConfigError)
 THREADS_RESOLVER = "tivne.threads_per_job"
 
 
@@ -119,27 +117,7 @@ def run_sequence(run_dir: str | Path) -> tuple[SequenceView, RenderConfig]:
 
 def bad_input_cause(exc: BaseException) -> BaseException | None:
     """The first :data:`BAD_INPUT` exception in ``exc``'s cause/context chain, or None."""
-    seen: set[int] = set()
-    current: BaseException | None = exc
-    while current is not None and id(current) not in seen:
-        seen.add(id(current))
-        if isinstance(current, BAD_INPUT):
-            return current
-        current = current.__cause__ or current.__context__
-    return None
-
-
-def error_line(exc: BaseException) -> str:
-    """``error: ...`` in one line for a bad-input exception."""
-    if isinstance(exc, MissingMandatoryValue):
-        key = getattr(exc, "full_key", None) or ""
-        text = f"missing mandatory config value {key!r} (set it on the command line: {key}=...)" if key else str(exc)
-    elif isinstance(exc, OSError) and exc.filename is not None:
-        text = f"{exc.filename}: {exc.strerror or type(exc).__name__}"
-    else:
-        text = str(exc) or type(exc).__name__
-    first = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
-    return "error: " + re.sub(r"\s+", " ", first).strip()
+    return find_cause(exc, BAD_INPUT)
 
 
 def in_multirun() -> bool:
