@@ -256,8 +256,9 @@ class MeshConfig(Settings):
     """Meshes (train, ``tivne.mesh`` and ``tivne.evaluate`` share these keys). times: seconds on the
     sequence clock (empty = the first and last frame); resolution: marching-cubes step in metres.
     Observed space only (:class:`tivne.meshing.MeshCulling`): min_hits: voxels that held static depth
-    in >= n frames (0: also the unobserved dilation shell); dynamic_window: ... or a moving object
-    within this many seconds of τ of the mesh time (null: never); backfaces: drop faces no camera saw
+    in >= n frames (0: also the unobserved dilation shell); dynamic_window: ... or where a moving
+    object was seen at the observations just before and just after the mesh time, each within this
+    many seconds (null: never; the union of a whole window would show its path); backfaces: drop faces no camera saw
     from their free side (surfaces behind the supervised band)."""
 
     section: ClassVar[str] = "mesh"

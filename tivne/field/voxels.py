@@ -68,6 +68,24 @@ def trilinear_weights(frac: torch.Tensor) -> torch.Tensor:
     return w.prod(dim=-1)
 
 
+def bracketing_observations(times: torch.Tensor, tau: float, window: float) -> torch.Tensor:
+    """(N,) observation times -> (N,) bool: the rows of the latest time <= ``tau`` and of the
+    earliest time >= ``tau``, each only if within ``window`` seconds of ``tau``.
+
+    A moving object at ``tau`` lies between where it was seen just before and just after; the union
+    of every observation within the window would also show the path it swept in between (a trail
+    of ghost surface as long as speed x 2 x window).
+    """
+    near = (times - tau).abs() <= window
+    before, after = near & (times <= tau), near & (times >= tau)
+    keep = torch.zeros_like(near)
+    if before.any():
+        keep |= before & (times == times[before].max())
+    if after.any():
+        keep |= after & (times == times[after].min())
+    return keep
+
+
 class SparseVoxelGrid(nn.Module):
     """Corner-shared embeddings E on sparsely allocated voxels.
 
@@ -232,11 +250,12 @@ class SparseVoxelGrid(nn.Module):
 
     def observed(self, points: torch.Tensor, min_hits: int = 1, tau: float | None = None, window: float = 0.0) -> torch.Tensor:
         """(..., 3) world points -> (...) bool: inside a voxel with >= ``min_hits`` static hits, or
-        (``tau`` given) one where a moving object was observed at a time within ``window`` of ``tau``."""
+        (``tau`` given) one where a moving object was observed at the observations that bracket
+        ``tau`` within ``window`` (:func:`bracketing_observations`)."""
         out = self.contains(points, min_hits)
         if tau is None or self.dynamic_keys.numel() == 0:
             return out
-        recent = torch.unique(self.dynamic_keys[(self.dynamic_tau - float(tau)).abs() <= window])
+        recent = torch.unique(self.dynamic_keys[bracketing_observations(self.dynamic_tau, float(tau), window)])
         if recent.numel() == 0:
             return out
         keys, in_range = self.point_keys(points)

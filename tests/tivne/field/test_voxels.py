@@ -9,6 +9,7 @@ from tivne.field.voxels import (
     CORNER_OFFSETS,
     GridCapacityError,
     SparseVoxelGrid,
+    bracketing_observations,
     pack_coords,
     sorted_lookup,
     trilinear_weights,
@@ -308,3 +309,21 @@ def test_dynamic_points_record_voxel_and_time_instead_of_hits():
     assert grid.observed(probe, tau=0.6, window=0.2).tolist() == [True, True, False]
     assert grid.observed(probe, tau=1.9, window=0.2).tolist() == [True, False, True]
     assert grid.observed(probe, tau=1.0, window=0.2).tolist() == [True, False, False]
+
+
+def test_bracketing_observations_keep_the_nearest_time_on_each_side_within_the_window():
+    times = torch.tensor([0.5, 0.6, 0.6, 0.7, 0.9, 2.0])
+    assert bracketing_observations(times, 0.62, 0.2).tolist() == [False, True, True, True, False, False]
+    assert bracketing_observations(times, 0.6, 0.2).tolist() == [False, True, True, False, False, False]
+    assert bracketing_observations(times, 1.5, 0.2).tolist() == [False] * 6  # none within the window
+    assert bracketing_observations(times, 1.85, 0.2).tolist() == [False] * 5 + [True]  # only after
+    assert bracketing_observations(times, 3.0, 10.0).tolist() == [False] * 5 + [True]  # only before
+
+
+def test_a_moving_object_shows_where_it_was_seen_around_tau_not_along_its_path():
+    grid = SparseVoxelGrid(voxel_size=0.1, embed_dim=2, capacity=16)
+    for i, tau in enumerate((0.0, 0.1, 0.2, 0.3)):  # one voxel further along x at each observation
+        grid.allocate(torch.tensor([[0.05 + 0.1 * i, 0.05, 0.05]]), dynamic=torch.tensor([True]), tau=tau)
+    probe = torch.tensor([[0.05 + 0.1 * i, 0.05, 0.05] for i in range(4)])
+    assert grid.observed(probe, min_hits=1, tau=0.15, window=0.2).tolist() == [False, True, True, False]
+    assert grid.observed(probe, min_hits=1, tau=0.3, window=0.2).tolist() == [False, False, False, True]
