@@ -43,7 +43,8 @@ class FieldConfig(Settings):
     initial and hard cap of embedding rows; time_scale: τ = (t - t0)·time_scale with t in seconds;
     offset_ramp: Δe gated by tanh(τ / ramp), exactly 0 at τ = 0; allocation_dilation: also allocate
     voxels this many voxels around observed depth; canonical_time: feed τ to Θs too (the paper does;
-    off, a time input extrapolates at unseen τ and moves the static map)."""
+    off, a time input extrapolates at unseen τ and moves the static map); surface_cell: record the
+    cells of this size (metres) that held static depth, for ``mesh.near_surface`` (0 = no record)."""
 
     section: ClassVar[str] = "field"
     name: str = "tivne"
@@ -60,6 +61,7 @@ class FieldConfig(Settings):
     offset_ramp: float = setting(0.1, gt=0)
     allocation_dilation: int = setting(1, ge=0)
     canonical_time: bool = False
+    surface_cell: float = setting(0.02, ge=0)
 
     def field_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of :class:`tivne.field.TimeVaryingField` (everything but ``name``)."""
@@ -259,7 +261,10 @@ class MeshConfig(Settings):
     Observed space only (:class:`tivne.meshing.MeshCulling`): min_hits: voxels that held static depth
     in >= n frames (0: also the unobserved dilation shell); dynamic_window: ... or where a moving
     object was seen at the observations just before and just after the mesh time, each within this
-    many seconds (null: never; the union of a whole window would show its path); backfaces: drop faces no camera saw
+    many seconds (null: never; the union of a whole window would show its path); near_surface: drop
+    faces farther than one ``field.surface_cell`` from any observed static depth point, unless on a
+    moving object seen then (the field is unsupervised past the sampled band behind a surface and
+    makes surfaces up there, inside observed voxels); backfaces: drop faces no camera saw
     from their free side (surfaces behind the supervised band)."""
 
     section: ClassVar[str] = "mesh"
@@ -267,6 +272,7 @@ class MeshConfig(Settings):
     resolution: float = setting(0.02, gt=0)
     min_hits: int = setting(1, ge=0)
     dynamic_window: float | None = setting(0.2, ge=0)
+    near_surface: bool = True
     backfaces: bool = True
 
 

@@ -85,6 +85,34 @@ def cull_backfaces(mesh: trimesh.Trimesh, camera_centres: np.ndarray, chunk: int
     return out if len(out.faces) else empty_mesh()
 
 
+def cull_unobserved_faces(
+    mesh: trimesh.Trimesh, grid, tau: float, window: float | None, margin: float
+) -> trimesh.Trimesh:
+    """Keep the faces whose centre lies within one surface cell of observed static depth
+    (``grid.near_surface``) or, when ``window`` is not None, within ``margin`` (per axis, as
+    :func:`near_observed`) of a voxel where a moving object was seen around ``tau``.
+
+    Args:
+        mesh: in the grid's world frame; grid: a SparseVoxelGrid; tau: field time of the mesh.
+    Returns:
+        the mesh without the other faces (unreferenced vertices removed).
+    """
+    if len(mesh.faces) == 0:
+        return mesh
+    centres = torch.as_tensor(np.array(mesh.triangles_center, dtype=np.float32), device=grid.surface_keys.device)
+    keep = grid.near_surface(centres)
+    if window is not None:
+        for offset in CORNER_OFFSETS.to(centres.device, centres.dtype):
+            keep |= grid.dynamic_observed(centres + (2 * offset - 1) * margin, tau, window)
+    keep = keep.cpu().numpy()
+    if keep.all():
+        return mesh
+    out = mesh.copy()
+    out.update_faces(keep)
+    out.remove_unreferenced_vertices()
+    return out if len(out.faces) else empty_mesh()
+
+
 def near_observed(
     grid, points: torch.Tensor, min_hits: int, margin: float, tau: float | None = None, window: float = 0.0
 ) -> torch.Tensor:
@@ -243,7 +271,7 @@ def extract_mesh(
         chunk: points per field evaluation.
         device: where to evaluate; default the field's device (a field elsewhere is copied there).
         slab_points: lattice points per slab (bounds the temporaries).
-        culling: keep the mesh to observed space (``min_hits``, ``dynamic_window``, ``backfaces`` of a
+        culling: keep the mesh to observed space (``min_hits``, ``dynamic_window``, ``near_surface``, ``backfaces`` of a
             :class:`tivne.config.MeshConfig`); None: every allocated voxel.
         camera_centres: (N, 3) camera positions of the run (for ``culling.backfaces``).
     Returns:
@@ -287,6 +315,8 @@ def extract_mesh(
     if len(faces) == 0:
         return empty_mesh()
     mesh = coloured_mesh(field, origin[None] + verts * resolution, faces, tau, chunk)
+    if culling is not None and culling.near_surface:
+        mesh = cull_unobserved_faces(mesh, grid, tau, culling.dynamic_window, resolution)
     if culling is not None and culling.backfaces and camera_centres is not None:
         mesh = cull_backfaces(mesh, camera_centres)
     return mesh if len(mesh.faces) else empty_mesh()

@@ -315,3 +315,39 @@ def test_cull_backfaces_keeps_faces_any_camera_sees_from_their_free_side():
     assert len(cull_backfaces(quad, np.array([[0.2, 0.2, 0.0]])).faces) == 1
     assert len(cull_backfaces(quad, np.array([[0.2, 0.2, 0.0], [0.2, 0.2, 3.0]])).faces) == 2
     assert len(cull_backfaces(quad, np.zeros((0, 3))).faces) == 2
+
+
+class RoomWithMadeUpSurface(AnalyticSphere):
+    """A spherical room wall at r = 0.5 seen from inside; behind it the SDF turns positive at r = 0.56
+    and negative again at r = 0.62, a made-up surface that faces the cameras (as an unsupervised field
+    can, past the sampled band), so back-face culling keeps it."""
+
+    def forward(self, points: torch.Tensor, tau: torch.Tensor) -> FieldOutputs:
+        out = super().forward(points, tau)
+        r = points.norm(dim=-1)
+        d = torch.where(r < 0.53, 0.5 - r, torch.where(r < 0.59, r - 0.56, 0.62 - r)) / TRUNCATION
+        out.sdf = torch.where(out.valid, d, out.sdf)
+        return out
+
+
+def test_near_surface_drops_a_made_up_surface_that_faces_the_cameras():
+    field = RoomWithMadeUpSurface(time=False, voxel_size=0.1, capacity=256, surface_cell=0.02)
+    field.grid.allocate(sphere_surface(20000, 0.5), dilation=1)  # depth was seen on the wall only
+    centres = np.array([[0.0, 0.0, 0.0], [0.1, -0.05, 0.0]])
+    kept = extract_mesh(field, 0.0, resolution=0.02, culling=MeshConfig(min_hits=1, near_surface=False), camera_centres=centres)
+    culled = extract_mesh(field, 0.0, resolution=0.02, culling=MeshConfig(min_hits=1), camera_centres=centres)
+    r_kept, r_culled = np.linalg.norm(kept.vertices, axis=1), np.linalg.norm(culled.vertices, axis=1)
+    assert (np.abs(r_kept - 0.62) < 0.01).sum() > 100  # back-face culling alone keeps it
+    assert (np.abs(r_culled - 0.62) < 0.02).sum() == 0
+    assert abs(culled.area - 4 * np.pi * 0.5**2) / (4 * np.pi * 0.5**2) < 0.05  # the wall is whole
+
+
+def test_near_surface_keeps_a_moving_object_seen_around_the_mesh_time():
+    field = MovingBall(time=True, voxel_size=0.1, capacity=64, surface_cell=0.02)
+    pts = ball_surface(0.5)
+    field.grid.allocate(pts, dilation=1, dynamic=torch.ones(len(pts), dtype=torch.bool), tau=1.0)
+    assert field.grid.surface_keys.numel() == 0  # moving depth is not static surface
+    field.grid.allocate(torch.tensor([[3.0, 0.0, 0.0]]))  # some static surface far away
+    assert not field.grid.near_surface(pts).any()
+    at1 = extract_mesh(field, 1.0, resolution=0.02, culling=MeshConfig(min_hits=1, dynamic_window=0.2))
+    assert at1.is_watertight and len(at1.faces) > 100  # kept: on the moving object seen then

@@ -118,13 +118,14 @@ class TimeVaryingField(nn.Module):
         offset_ramp: float = 0.1,
         allocation_dilation: int = 1,
         canonical_time: bool = False,
+        surface_cell: float = 0.0,
     ) -> None:
         super().__init__()
         self.time = bool(time)
         self.time_scale = float(time_scale)
         self.time_frequencies = int(time_frequencies)
         self.allocation_dilation = int(allocation_dilation)
-        self.grid = SparseVoxelGrid(voxel_size, embed_dim, capacity, max_capacity, init_std)
+        self.grid = SparseVoxelGrid(voxel_size, embed_dim, capacity, max_capacity, init_std, surface_cell)
         time_dim = 1 + 2 * self.time_frequencies if self.time else 0
         self.deformation = DeformationMLP(embed_dim, time_dim, hidden_dim, num_hidden, offset_ramp) if self.time else None
         # Θs sees τ only when asked: trained on past times, a time input extrapolates arbitrarily at

@@ -104,6 +104,7 @@ class SparseVoxelGrid(nn.Module):
         capacity: int = 20000,
         max_capacity: int = 2_000_000,
         init_std: float = 0.01,
+        surface_cell: float = 0.0,
     ) -> None:
         super().__init__()
         if voxel_size <= 0:
@@ -122,6 +123,11 @@ class SparseVoxelGrid(nn.Module):
         # mesh at time τ can show moving objects only where they were seen around τ.
         self.register_buffer("dynamic_keys", torch.zeros(0, dtype=torch.long))
         self.register_buffer("dynamic_tau", torch.zeros(0, dtype=torch.float32))
+        # (S,) sorted keys of the cells of size ``surface_cell`` that held a static depth point: a
+        # record of the observed surface much finer than the voxels, so meshing can drop surfaces the
+        # field made up where nothing was seen (behind the supervised band, inside a hit voxel).
+        self.surface_cell = float(surface_cell)
+        self.register_buffer("surface_keys", torch.zeros(0, dtype=torch.long))
         self.register_buffer("corner_keys", torch.zeros(0, dtype=torch.long))  # (C,) sorted
         self.register_buffer("corner_rows", torch.zeros(0, dtype=torch.long))  # (C,)
         self.grow_callbacks: list = []  # called with (old_rows, new_rows) after E grows
@@ -198,6 +204,8 @@ class SparseVoxelGrid(nn.Module):
             self._insert_voxels(new_keys)
         pos, _ = sorted_lookup(self.voxel_keys, hit_keys)  # every hit voxel exists now
         self.voxel_hits[pos] += 1
+        if self.surface_cell > 0:
+            self._record_surface(points.to(device)[ok & ~is_dynamic])
         if dyn_keys.numel():
             self.dynamic_keys = torch.cat([self.dynamic_keys, dyn_keys])
             self.dynamic_tau = torch.cat([self.dynamic_tau, torch.full(dyn_keys.shape, float(tau), device=device)])
@@ -248,18 +256,45 @@ class SparseVoxelGrid(nn.Module):
             found &= self.voxel_hits[pos] >= min_hits
         return found
 
+    def _record_surface(self, points: torch.Tensor) -> None:
+        """Add the cells of (N, 3) static depth points to ``surface_keys`` (kept sorted, unique)."""
+        cells = torch.floor(points / self.surface_cell)
+        cells = cells[(cells.abs() < _OFFSET - 2).all(-1)].long()
+        if cells.numel() == 0:
+            return
+        keys = torch.unique(pack_coords(cells, checked=False))
+        fresh = keys[~sorted_lookup(self.surface_keys, keys)[1]]
+        if fresh.numel():
+            self.surface_keys = torch.sort(torch.cat([self.surface_keys, fresh])).values
+
+    def near_surface(self, points: torch.Tensor) -> torch.Tensor:
+        """(P, 3) world points -> (P,) bool: within one cell (per axis) of a cell that held a static
+        depth point. All True when nothing was recorded (``surface_cell`` 0, or an older map)."""
+        if self.surface_keys.numel() == 0:
+            return torch.ones(points.shape[0], dtype=torch.bool, device=points.device)
+        cells = torch.floor(points.to(self.surface_keys.device) / self.surface_cell)
+        in_range = (cells.abs() < _OFFSET - 2).all(-1)
+        cells = torch.where(in_range[:, None], cells, torch.zeros_like(cells)).long()
+        near = torch.zeros(points.shape[0], dtype=torch.bool, device=self.surface_keys.device)
+        r = torch.arange(-1, 2, device=cells.device)
+        for off in torch.stack(torch.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3):
+            near |= sorted_lookup(self.surface_keys, pack_coords(cells + off, checked=False))[1]
+        return (near & in_range).to(points.device)
+
+    def dynamic_observed(self, points: torch.Tensor, tau: float, window: float) -> torch.Tensor:
+        """(..., 3) world points -> (...) bool: inside a voxel where a moving object was seen at the
+        observations that bracket ``tau`` within ``window`` (:func:`bracketing_observations`)."""
+        keys, in_range = self.point_keys(points)
+        if self.dynamic_keys.numel() == 0:
+            return torch.zeros_like(in_range)
+        recent = torch.unique(self.dynamic_keys[bracketing_observations(self.dynamic_tau, float(tau), window)])
+        return sorted_lookup(recent, keys)[1] & in_range
+
     def observed(self, points: torch.Tensor, min_hits: int = 1, tau: float | None = None, window: float = 0.0) -> torch.Tensor:
         """(..., 3) world points -> (...) bool: inside a voxel with >= ``min_hits`` static hits, or
-        (``tau`` given) one where a moving object was observed at the observations that bracket
-        ``tau`` within ``window`` (:func:`bracketing_observations`)."""
+        (``tau`` given) one where a moving object was seen around ``tau`` (:meth:`dynamic_observed`)."""
         out = self.contains(points, min_hits)
-        if tau is None or self.dynamic_keys.numel() == 0:
-            return out
-        recent = torch.unique(self.dynamic_keys[bracketing_observations(self.dynamic_tau, float(tau), window)])
-        if recent.numel() == 0:
-            return out
-        keys, in_range = self.point_keys(points)
-        return out | (sorted_lookup(recent, keys)[1] & in_range)
+        return out if tau is None else out | self.dynamic_observed(points, tau, window)
 
     def lookup(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Trilinearly interpolated embeddings at points inside allocated voxels.
@@ -293,3 +328,4 @@ class SparseVoxelGrid(nn.Module):
         self.voxel_hits = state.get("voxel_hits", torch.ones_like(self.voxel_keys, dtype=torch.int32)).clone()
         self.dynamic_keys = state.get("dynamic_keys", torch.zeros(0, dtype=torch.long)).clone()
         self.dynamic_tau = state.get("dynamic_tau", torch.zeros(0, dtype=torch.float32)).clone()
+        self.surface_keys = state.get("surface_keys", torch.zeros(0, dtype=torch.long)).clone()  # older maps: none

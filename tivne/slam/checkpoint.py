@@ -97,7 +97,7 @@ def load_field_state(field: TimeVaryingField, state: dict[str, torch.Tensor]) ->
     """Load a field state dict into ``field`` (its grid grows to the saved size first)."""
     state = dict(state)
     field.grid.load_sparse_state({k[len("grid."):]: v for k, v in state.items() if k.startswith("grid.")})
-    for name in ("voxel_hits", "dynamic_keys", "dynamic_tau"):  # format-1 files from before hit counts
+    for name in ("voxel_hits", "dynamic_keys", "dynamic_tau", "surface_keys"):  # files from before these records
         state.setdefault(f"grid.{name}", getattr(field.grid, name))
     field.load_state_dict(state)
 

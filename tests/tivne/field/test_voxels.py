@@ -327,3 +327,20 @@ def test_a_moving_object_shows_where_it_was_seen_around_tau_not_along_its_path()
     probe = torch.tensor([[0.05 + 0.1 * i, 0.05, 0.05] for i in range(4)])
     assert grid.observed(probe, min_hits=1, tau=0.15, window=0.2).tolist() == [False, True, True, False]
     assert grid.observed(probe, min_hits=1, tau=0.3, window=0.2).tolist() == [False, False, False, True]
+
+
+def test_surface_record_holds_static_depth_cells_and_survives_a_checkpoint(tmp_path):
+    from tivne.field.networks import TimeVaryingField
+    from tivne.slam.checkpoint import load_checkpoint, save_checkpoint
+
+    kwargs = dict(time=False, voxel_size=0.1, embed_dim=4, capacity=8, hidden_dim=8, num_hidden=3, time_frequencies=1, surface_cell=0.02)
+    field = TimeVaryingField(**kwargs)
+    grid = field.grid
+    assert grid.near_surface(torch.tensor([[5.0, 5.0, 5.0]])).all()  # nothing recorded: no opinion
+    grid.allocate(torch.tensor([[0.01, 0.01, 0.01], [0.51, 0.01, 0.01]]), dynamic=torch.tensor([False, True]), tau=0.3)
+    grid.allocate(torch.tensor([[0.015, 0.01, 0.01]]))  # same cell again: no duplicate key
+    assert unpack_keys(grid.surface_keys).tolist() == [[0, 0, 0]]
+    probe = torch.tensor([[0.01, 0.01, 0.01], [0.03, -0.01, 0.03], [0.07, 0.01, 0.01], [0.51, 0.01, 0.01]])
+    assert grid.near_surface(probe).tolist() == [True, True, False, False]  # one cell around; not the moving point
+    back, _ = load_checkpoint(save_checkpoint(tmp_path / "a.pt", field, kwargs, [0.0], torch.eye(4)[None], 0.0))
+    assert torch.equal(back.grid.surface_keys, grid.surface_keys) and back.grid.surface_cell == 0.02
