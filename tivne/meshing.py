@@ -77,12 +77,7 @@ def cull_backfaces(mesh: trimesh.Trimesh, camera_centres: np.ndarray, chunk: int
         p, n = points[start : start + chunk], normals[start : start + chunk]
         # n . (c - p) > 0 for some camera c: the face's free side faces that camera.
         seen[start : start + chunk] = ((centres[None] - p[:, None]) * n[:, None]).sum(-1).max(1) > 0
-    if seen.all():
-        return mesh
-    out = mesh.copy()
-    out.update_faces(seen)
-    out.remove_unreferenced_vertices()
-    return out if len(out.faces) else empty_mesh()
+    return keep_faces(mesh, seen)
 
 
 def cull_unobserved_faces(
@@ -104,7 +99,11 @@ def cull_unobserved_faces(
     if window is not None:
         for offset in CORNER_OFFSETS.to(centres.device, centres.dtype):
             keep |= grid.dynamic_observed(centres + (2 * offset - 1) * margin, tau, window)
-    keep = keep.cpu().numpy()
+    return keep_faces(mesh, keep.cpu().numpy())
+
+
+def keep_faces(mesh: trimesh.Trimesh, keep: np.ndarray) -> trimesh.Trimesh:
+    """The mesh with only the faces flagged in ``keep`` (F,) bool, unreferenced vertices removed."""
     if keep.all():
         return mesh
     out = mesh.copy()
