@@ -57,6 +57,7 @@ class FieldConfig(Settings):
     hidden_dim: int = setting(64, ge=1)
     num_hidden: int = setting(3, ge=1)
     time_frequencies: int = setting(4, ge=0)
+    time_lowest_octave: int = setting(0, ge=-16, le=16)
     time_scale: float = setting(1.0, gt=0)
     offset_ramp: float = setting(0.1, gt=0)
     allocation_dilation: int = setting(1, ge=0)

@@ -17,19 +17,23 @@ def time_to_tau(timestamp: float, t0: float, time_scale: float) -> float:
     return (float(timestamp) - float(t0)) * float(time_scale)
 
 
-def time_encoding(tau: torch.Tensor, num_frequencies: int) -> torch.Tensor:
-    """Positional encoding γ(τ) = (τ, sin(2^k π τ), cos(2^k π τ)) for k < L.
+def time_encoding(tau: torch.Tensor, num_frequencies: int, lowest_octave: int = 0) -> torch.Tensor:
+    """Positional encoding γ(τ) = (τ, sin(2^k π τ), cos(2^k π τ)) for k = k0 … k0 + L - 1.
+
+    With k0 = 0 the slowest pair repeats every 2 time units, so later times share the phases of
+    earlier ones (only the linear τ tells them apart); a negative k0 keeps γ unique for 2^(1-k0).
 
     Args:
         tau: (P,) normalised time.
-        num_frequencies: L.
+        num_frequencies: L; lowest_octave: k0.
     Returns:
         (P, 1 + 2L).
     """
     tau = tau[:, None]
     if num_frequencies == 0:
         return tau
-    freqs = (2.0 ** torch.arange(num_frequencies, device=tau.device, dtype=tau.dtype)) * math.pi
+    octaves = torch.arange(lowest_octave, lowest_octave + num_frequencies, device=tau.device, dtype=tau.dtype)
+    freqs = (2.0**octaves) * math.pi
     angles = tau * freqs
     return torch.cat([tau, torch.sin(angles), torch.cos(angles)], dim=-1)
 
@@ -114,6 +118,7 @@ class TimeVaryingField(nn.Module):
         hidden_dim: int = 64,
         num_hidden: int = 3,
         time_frequencies: int = 4,
+        time_lowest_octave: int = 0,
         time_scale: float = 1.0,
         offset_ramp: float = 0.1,
         allocation_dilation: int = 1,
@@ -124,6 +129,7 @@ class TimeVaryingField(nn.Module):
         self.time = bool(time)
         self.time_scale = float(time_scale)
         self.time_frequencies = int(time_frequencies)
+        self.time_lowest_octave = int(time_lowest_octave)
         self.allocation_dilation = int(allocation_dilation)
         self.grid = SparseVoxelGrid(voxel_size, embed_dim, capacity, max_capacity, init_std, surface_cell)
         time_dim = 1 + 2 * self.time_frequencies if self.time else 0
@@ -144,7 +150,7 @@ class TimeVaryingField(nn.Module):
         if e.shape[0] > 0:
             if self.time:
                 tv = tau[valid]
-                code = time_encoding(tv, self.time_frequencies)
+                code = time_encoding(tv, self.time_frequencies, self.time_lowest_octave)
                 delta = self.deformation(e, tv, code)
                 s, c = self.canonical(e + delta, code if self.canonical_time else None)
                 offset_sq = offset_sq.masked_scatter(valid, delta.pow(2).sum(-1))

@@ -53,6 +53,15 @@ def test_time_encoding_shape_and_values():
     assert time_encoding(tau.double(), 2).dtype == torch.float64
 
 
+def test_time_encoding_lowest_octave_keeps_later_times_apart():
+    tau = torch.tensor([0.5, 2.5])  # two time units apart: the k0 = 0 phases repeat
+    same = time_encoding(tau, 4)
+    assert torch.allclose(same[0, 1:], same[1, 1:], atol=1e-5)  # only the linear τ differs
+    low = time_encoding(tau, 8, lowest_octave=-4)  # slowest pair: π/16, one period per 32 units
+    assert low.shape == (2, 17) and (low[0, 1:] - low[1, 1:]).abs().max() > 0.3
+    assert torch.allclose(low[:, 1 + 4], same[:, 1])  # k = 0 is the same pair in both
+
+
 # ---- Θd -------------------------------------------------------------------------------------------
 
 
