@@ -13,13 +13,13 @@ ENV PIP_NO_CACHE_DIR=1 \
     PYTHONUNBUFFERED=1 \
     OMP_WAIT_POLICY=PASSIVE \
     MPLBACKEND=Agg \
-    HOME=/home/tivne \
-    TIVNE_CACHE_DIR=/home/tivne/.cache/tivne
-# A non-root user; HOME and /runs are writable by any uid too, so `docker run --user "$(id -u):$(id -g)"`
-# (results owned by you on the host) works as well.
-RUN useradd --create-home --home-dir /home/tivne --uid 1000 tivne \
- && mkdir -p /runs /home/tivne/.cache/tivne \
- && chmod -R a+rwX /runs /home/tivne
+    HOME=/runs
+# A non-root user whose home is the run folder (the synthetic-scene cache lands in ~/.cache/tivne
+# there); it is writable by any uid too, so `docker run --user "$(id -u):$(id -g)"` (results owned by
+# you on the host) works as well.
+RUN useradd --no-create-home --home-dir /runs --uid 1000 tivne \
+ && mkdir -p /runs/.cache/tivne \
+ && chmod -R a+rwX /runs
 
 # torch first and pinned, from the index of the chosen build, so pip never swaps it for another one.
 FROM base AS torch-cpu

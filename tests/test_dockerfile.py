@@ -78,7 +78,9 @@ def test_cpu_and_cuda_builds():
 def test_runs_as_a_user_with_home_and_a_headless_matplotlib():
     assert of("USER") and of("USER")[-1] not in ("root", "0")
     env = " ".join(of("ENV"))
-    assert re.search(r"\bHOME=/home/\w+", env) and "MPLBACKEND=Agg" in env
+    home = re.search(r"\bHOME=(\S+)", env)
+    assert home and home.group(1) == of("WORKDIR")[-1] and "MPLBACKEND=Agg" in env  # the writable run folder
+    assert "chmod -R a+rwX " + home.group(1) in " ".join(of("RUN"))
 
 
 def test_command_is_the_readme_main_command():
