@@ -11,7 +11,7 @@ like.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,6 +44,53 @@ class RenderedFrame:
     dynamic: torch.Tensor | None = None
 
 
+@dataclass
+class Rerendered:
+    """One processed frame re-rendered at its estimated pose: ``run_index`` into the checkpoint's
+    records, the dataset ``frame`` it was matched to (by timestamp), and (H', W', 3) rgb / (H', W')
+    depth at the pixel stride."""
+
+    run_index: int
+    view_index: int
+    frame: Any
+    rgb: torch.Tensor
+    depth: torch.Tensor
+
+
+@torch.no_grad()
+def rerender_processed(
+    field: TimeVaryingField,
+    meta: dict[str, Any],
+    view: SequenceView,
+    render: RenderConfig,
+    pick: Callable[[int], Sequence[int]],
+    stride: int = 1,
+) -> list[Rerendered]:
+    """Re-render the processed frames ``pick(n)`` chooses among the n matched ones.
+
+    Args:
+        field, meta: a loaded checkpoint (``meta``: ``timestamps`` (N,), ``poses`` (N, 4, 4) c2w, ``t0``).
+        view: the sequence the run processed (frames are matched to the checkpoint by timestamp).
+        pick: n -> positions in range(n) to render; stride: pixel step.
+    Returns:
+        the re-rendered frames, rgb and depth on the CPU.
+    """
+    stamps = np.asarray(meta["timestamps"], dtype=np.float64)
+    poses = torch.as_tensor(meta["poses"])
+    i_run, i_view = associate_by_timestamp(stamps, view.timestamps, 1e-4)
+    device = field_device(field)
+    K = view.intrinsics.K(device=device)
+    out = []
+    for k in pick(len(i_run)):
+        a, b = int(i_run[k]), int(i_view[k])
+        frame = view[b]
+        tau = time_to_tau(stamps[a], meta["t0"], field.time_scale)
+        posed = View(b, tau, frame.rgb.to(device), frame.depth.to(device), None, poses[a].to(device=device, dtype=torch.float32))
+        rgb, depth = render_image(field, posed, K, render, stride)
+        out.append(Rerendered(a, b, frame, rgb.cpu(), depth.cpu()))
+    return out
+
+
 def render_frames(
     field: TimeVaryingField,
     meta: dict[str, Any],
@@ -52,28 +99,13 @@ def render_frames(
     every: int,
     stride: int = 1,
 ) -> list[RenderedFrame]:
-    """Render every ``every``-th processed frame of a run at its estimated pose.
-
-    Args:
-        field, meta: a loaded checkpoint (``meta``: ``timestamps`` (N,), ``poses`` (N, 4, 4) c2w, ``t0``).
-        view: the sequence the run processed (frames are matched to the checkpoint by timestamp).
-        every: frame step (>= 1); stride: pixel step.
-    Returns:
-        the rendered frames, on the CPU.
-    """
-    stamps = np.asarray(meta["timestamps"], dtype=np.float64)
-    poses = torch.as_tensor(meta["poses"])
-    i_run, i_view = associate_by_timestamp(stamps, view.timestamps, 1e-4)
-    device = field_device(field)
-    K = view.intrinsics.K(device=device)
+    """Render every ``every``-th processed frame of a run at its estimated pose (see
+    :func:`rerender_processed`); the observed colour, depth validity and mask at the same stride."""
     frames = []
-    for a, b in list(zip(i_run.tolist(), i_view.tolist()))[:: max(1, int(every))]:
-        frame = view[b]
-        tau = time_to_tau(stamps[a], meta["t0"], field.time_scale)
-        posed = View(b, tau, frame.rgb.to(device), frame.depth.to(device), None, poses[a].to(device=device, dtype=torch.float32))
-        rgb, _ = render_image(field, posed, K, render, stride)
-        dynamic = None if frame.mask is None else frame.mask[::stride, ::stride]
-        frames.append(RenderedFrame(rgb.cpu(), frame.rgb[::stride, ::stride], frame.depth[::stride, ::stride] > 0, dynamic))
+    for r in rerender_processed(field, meta, view, render, lambda n: range(0, n, max(1, int(every))), stride):
+        f = r.frame
+        dynamic = None if f.mask is None else f.mask[::stride, ::stride]
+        frames.append(RenderedFrame(r.rgb, f.rgb[::stride, ::stride], f.depth[::stride, ::stride] > 0, dynamic))
     return frames
 
 

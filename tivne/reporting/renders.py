@@ -7,15 +7,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import torch
 
 from data_modules.sequence import SequenceView
-from data_modules.timestamps import associate_by_timestamp
 from tivne.config import RenderConfig
-from tivne.field.networks import TimeVaryingField, time_to_tau
-from tivne.meshing import field_device
-from tivne.render.rays import View
-from tivne.render.renderer import render_image
+from tivne.evaluation.images import rerender_processed
+from tivne.field.networks import TimeVaryingField
 
 
 @dataclass(frozen=True)
@@ -38,7 +34,6 @@ def evenly_spaced(n: int, count: int) -> list[int]:
     return sorted({int(round(i)) for i in np.linspace(0, n - 1, min(count, n))})
 
 
-@torch.no_grad()
 def render_pairs(
     field: TimeVaryingField, meta: dict[str, Any], view: SequenceView, render: RenderConfig, count: int, stride: int
 ) -> list[FramePair]:
@@ -49,20 +44,11 @@ def render_pairs(
         view: the sequence the run processed (frames matched to the checkpoint by timestamp).
     """
     stamps = np.asarray(meta["timestamps"], dtype=np.float64)
-    poses = torch.as_tensor(meta["poses"])
-    i_run, i_view = associate_by_timestamp(stamps, view.timestamps, 1e-4)
-    device = field_device(field)
-    K = view.intrinsics.K(device=device)
-    pairs = []
-    for k in evenly_spaced(len(i_run), count):
-        a, b = int(i_run[k]), int(i_view[k])
-        frame = view[b]
-        tau = time_to_tau(stamps[a], meta["t0"], field.time_scale)
-        posed = View(b, tau, frame.rgb.to(device), frame.depth.to(device), None, poses[a].to(device=device, dtype=torch.float32))
-        rgb, depth = render_image(field, posed, K, render, stride)
-        pairs.append(FramePair(
-            frame=b, time_s=float(stamps[a] - stamps[0]),
-            observed_rgb=frame.rgb[::stride, ::stride].numpy(), rendered_rgb=rgb.cpu().numpy(),
-            observed_depth=frame.depth[::stride, ::stride].numpy(), rendered_depth=depth.cpu().numpy(),
-        ))
-    return pairs
+    return [
+        FramePair(
+            frame=r.view_index, time_s=float(stamps[r.run_index] - stamps[0]),
+            observed_rgb=r.frame.rgb[::stride, ::stride].numpy(), rendered_rgb=r.rgb.numpy(),
+            observed_depth=r.frame.depth[::stride, ::stride].numpy(), rendered_depth=r.depth.numpy(),
+        )
+        for r in rerender_processed(field, meta, view, render, lambda n: evenly_spaced(n, count), stride)
+    ]
