@@ -40,8 +40,8 @@ from data_modules.sequence import SequenceView  # noqa: E402
 from tivne.geometry import invert_pose  # noqa: E402
 from tivne.render.rays import View  # noqa: E402
 from tivne.render.renderer import render_image  # noqa: E402
+from tivne.slam.run import TrainSettings, build_system  # noqa: E402
 from tivne.slam.tracking import frozen, predict_pose  # noqa: E402
-from tivne.train import TrainSettings, build_system  # noqa: E402
 
 
 def pose_error(T: torch.Tensor, ref: torch.Tensor) -> tuple[float, float]:

@@ -95,7 +95,7 @@ def compose(name: str, args: argparse.Namespace):
 def run_slam(name: str, args: argparse.Namespace) -> dict[str, float]:
     from hydra.utils import instantiate
 
-    from tivne.train import run
+    from tivne.slam.run import run
 
     cfg = compose(name, args)
     rec = RecordingMasks(instantiate(cfg.masks.provider))

@@ -30,7 +30,7 @@ sys.path.insert(0, str(REPO))
 from data_modules.tum import TUMSequence  # noqa: E402
 from tivne.geometry import invert_pose, orthonormalize_pose, se3_exp, se3_log  # noqa: E402
 from tivne.metrics.trajectory import absolute_trajectory_error, relative_pose_error  # noqa: E402
-from tivne.slam.odometry import OdometryConfig, frame_pyramid, track_pyramids  # noqa: E402
+from tivne.slam.tracking.odometry import OdometryConfig, frame_pyramid, track_pyramids  # noqa: E402
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -92,7 +92,7 @@ def run_tivne(root: str, camera: str, frames: int, overrides: list[str]) -> dict
     from hydra import compose, initialize_config_dir
 
     from data_modules.tables import read_tum_trajectory
-    from tivne.train import run
+    from tivne.slam.run import run
 
     args = ["dataset=tum", f"dataset.root={root}", f"dataset.camera={camera}", "trainer.progress_bar=false", "output.image_every=0"]
     if frames:

@@ -23,7 +23,7 @@ from hydra import compose, initialize_config_dir
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from tivne.train import run  # noqa: E402
+from tivne.slam.run import run  # noqa: E402
 
 FIGURES = [
     ("frames", "frames", "{:.0f}"),

@@ -66,7 +66,7 @@ def child(overrides: list[str]) -> None:
     """Run one sequence in this process; print its figures as one JSON line."""
     from hydra import compose, initialize_config_dir
 
-    from tivne.train import run
+    from tivne.slam.run import run
 
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["trainer.progress_bar=false", "output.image_every=0", *overrides])

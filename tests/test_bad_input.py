@@ -183,7 +183,7 @@ TINY = ("dataset.num_frames=3", "dataset.width=80", "dataset.height=60", "datase
 
 CASES: tuple[Case, ...] = (
     # train: settings (one line naming the key, before any data is read)
-    Case("non-numeric setting", "train", (*SMOKE, "tracking.iters=abc", *TRAIN_RUN), "tracking.iters='abc': must be an integer"),
+    Case("non-numeric setting", "train", (*SMOKE, "field_tracking.iters=abc", *TRAIN_RUN), "field_tracking.iters='abc': must be an integer"),
     Case("setting out of range", "train", (*SMOKE, "mapping.lr_pose=-1", *TRAIN_RUN), "mapping.lr_pose=-1.0: must be > 0"),
     Case("NaN setting", "train", (*SMOKE, "render.truncation=nan", *TRAIN_RUN), "render.truncation=nan: must be a finite number"),
     Case("unknown choice", "train", (*SMOKE, "tracking.method=magic", *TRAIN_RUN), "tracking.method='magic': must be one of"),
@@ -210,7 +210,7 @@ CASES: tuple[Case, ...] = (
     Case("mask folder missing", "train", (*SMOKE, "masks=folder", "masks.provider.root={d}/masks", *TRAIN_RUN), "masks"),
     # train: the run directory
     Case("run dir with results", "train", (*SMOKE, *TRAIN_RUN), "already holds results", setup=lambda d: finished_run(d / "run")),
-    Case("resume with another config", "train", (*SMOKE, "tracking.iters=5", "resume=true", *TRAIN_RUN), "different config: tracking.iters (3 -> 5)", setup=interrupted_run),
+    Case("resume with another config", "train", (*SMOKE, "field_tracking.iters=5", "resume=true", *TRAIN_RUN), "different config: field_tracking.iters (3 -> 5)", setup=interrupted_run),
     Case("resume without a checkpoint", "train", (*SMOKE, "resume=true", *TRAIN_RUN), "nothing to resume"),
     Case("resume a complete run", "train", (*SMOKE, "resume=true", *TRAIN_RUN), "the run is complete", setup=lambda d: finished_run(d / "run")),
     Case("resume a truncated checkpoint", "train", (*SMOKE, "resume=true", *TRAIN_RUN), "not a readable TivNe checkpoint", setup=run_then(truncate_checkpoint, complete=False)),

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar
 
 from data_modules.sensor import KINECT_SIGMA
 from tivne.settings import ConfigError, Settings, default_tree, setting
@@ -41,8 +41,7 @@ class FieldConfig(Settings):
     """The time-varying field (paper §III-A). time=false is the "w/o time" ablation (Vox-Fusion-like
     static field on the same code path). voxel_size in metres; embed_dim = Q; capacity / max_capacity:
     initial and hard cap of embedding rows; time_scale: τ = (t - t0)·time_scale with t in seconds;
-    offset_ramp: Δe gated by tanh(τ / ramp), exactly 0 at τ = 0; allocation_dilation: also allocate
-    voxels this many voxels around observed depth; canonical_time: feed τ to Θs too (the paper does;
+    offset_ramp: Δe gated by tanh(τ / ramp), exactly 0 at τ = 0; canonical_time: feed τ to Θs too (the paper does;
     off, a time input extrapolates at unseen τ and moves the static map); surface_cell: record the
     cells of this size (metres) that held static depth, for ``mesh.near_surface`` (0 = no record)."""
 
@@ -60,13 +59,8 @@ class FieldConfig(Settings):
     time_lowest_octave: int = setting(0, ge=-16, le=16)
     time_scale: float = setting(1.0, gt=0)
     offset_ramp: float = setting(0.1, gt=0)
-    allocation_dilation: int = setting(1, ge=0)
     canonical_time: bool = False
     surface_cell: float = setting(0.02, ge=0)
-
-    def field_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`tivne.field.TimeVaryingField` (everything but ``name``)."""
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "name"}
 
 
 @dataclass(frozen=True)
@@ -102,47 +96,59 @@ class LossWeights(Settings):
 
 @dataclass(frozen=True)
 class TrackingConfig(Settings):
-    """method: 'odometry' (RGB-D odometry against a reference keyframe), 'odometry+field' (refined by
-    the field tracker) or 'field' (the paper's tracker alone); see :mod:`tivne.slam.frontend`. reference: the odometry's reference frame -- 'keyframe' (every mapping
-    keyframe), 'frame' (the previous frame) or 'adaptive' (only when the overlap or inlier ratio with
-    the reference falls below reference_min_overlap / reference_min_inliers, which also apply to the
-    other two). Tracking loss: the odometry fails (and its wider-basin retry too), the field tracker
-    alone keeps less than min_inlier_ratio of its rays, or the pose lands more than max_jump_m /
-    max_jump_deg from the motion model's prediction; a lost frame is reported and never mapped.
-
-    The field tracker: iters optimiser steps per frame over ``rays`` pixels (one fixed set per frame,
-    so the best-loss iterate is comparable). motion_model: 'zero' (paper) or 'constant_velocity'.
-    outlier_factor: rays with depth residual > factor x median are dropped (0 disables).
-    exclude_dynamic: draw no tracking rays from masked pixels. query_time: 'last_mapped' renders the
-    map at the latest time it was trained on (moving pixels become outliers), 'frame' at the frame's
-    own τ. stratified: jitter samples each iteration (off: the loss is a deterministic function of the
-    pose, so the best iterate is not chosen by sampling noise). lr_final_factor: the learning rate
-    decays exponentially to this fraction over the iterations."""
+    """The tracking front end (:mod:`tivne.slam.tracking`). method: 'odometry' (RGB-D odometry against
+    a reference frame), 'odometry+field' (refined by the field tracker, section ``field_tracking``) or
+    'field' (the paper's tracker alone). reference: the odometry's reference frame -- 'keyframe' (every
+    mapping keyframe), 'frame' (the previous frame) or 'adaptive' (only when the overlap or inlier
+    ratio with the reference falls below reference_min_overlap / reference_min_inliers, which also
+    apply to the other two). motion_model: the initial pose, 'zero' (paper) or 'constant_velocity'
+    (from the trajectory's last two poses). min_static_pixels: a frame with fewer static pixels with
+    depth is not tracked (nothing to track on) and not mapped. Tracking loss: the odometry fails (and
+    its wider-basin retry too), the field tracker alone keeps less than
+    ``field_tracking.min_inlier_ratio`` of its rays, or the pose lands more than max_jump_m /
+    max_jump_deg from the motion model's prediction; a lost frame is reported and never mapped."""
 
     section: ClassVar[str] = "tracking"
     method: str = setting("odometry", choices=("odometry", "odometry+field", "field"))
     reference: str = setting("adaptive", choices=("adaptive", "keyframe", "frame"))
     reference_min_overlap: float = setting(0.7, ge=0, le=1)
     reference_min_inliers: float = setting(0.5, ge=0, le=1)
-    min_inlier_ratio: float = setting(0.3, ge=0, le=1)
     max_jump_m: float = setting(0.3, gt=0)
     max_jump_deg: float = setting(30.0, gt=0)
+    motion_model: str = setting("constant_velocity", choices=("zero", "constant_velocity"))
+    min_static_pixels: int = setting(512, ge=1)
+
+
+@dataclass(frozen=True)
+class FieldTrackingConfig(Settings):
+    """The paper's field tracker (:func:`tivne.slam.tracking.field.track_frame`; ``tracking.method``
+    'field' or 'odometry+field'): iters optimiser steps per frame over ``rays`` pixels (one fixed set
+    per frame, so the best-loss iterate is comparable). outlier_factor: rays with depth residual >
+    factor x median are dropped (0 disables). exclude_dynamic: draw no tracking rays from masked
+    pixels. query_time: 'last_mapped' renders the map at the latest time it was trained on (moving
+    pixels become outliers), 'frame' at the frame's own τ. stratified: jitter samples each iteration
+    (off: the loss is a deterministic function of the pose, so the best iterate is not chosen by
+    sampling noise). lr_final_factor: the learning rate decays exponentially to this fraction over
+    the iterations. min_inlier_ratio: with ``tracking.method=field``, a frame keeping fewer of its
+    rays is lost."""
+
+    section: ClassVar[str] = "field_tracking"
     iters: int = setting(30, ge=1)
     rays: int = setting(512, ge=1)
     lr_rot: float = setting(2e-3, gt=0)
     lr_trans: float = setting(2e-3, gt=0)
-    motion_model: str = setting("constant_velocity", choices=("zero", "constant_velocity"))
     outlier_factor: float = setting(10.0, ge=0)
     keep_best: bool = True
     exclude_dynamic: bool = True
     query_time: str = setting("last_mapped", choices=("last_mapped", "frame"))
     stratified: bool = False
     lr_final_factor: float = setting(0.1, gt=0, le=1)
+    min_inlier_ratio: float = setting(0.3, ge=0, le=1)
 
 
 @dataclass(frozen=True)
 class OdometryConfig(Settings):
-    """Dense RGB-D odometry (:func:`tivne.slam.odometry.track_pyramids`; ``tracking.method=odometry``) (noise-model based defaults, not tuned to one sequence).
+    """Dense RGB-D odometry (:func:`tivne.slam.tracking.odometry.track_pyramids`; ``tracking.method=odometry``) (noise-model based defaults, not tuned to one sequence).
 
     levels: pyramid levels (1 = full resolution only). max_iterations: Gauss–Newton iterations per
     level. photometric / geometric: which residual terms enter. robust: "huber" (k 1.345) or
@@ -284,16 +290,24 @@ class OutputConfig(Settings):
     checkpoint_every: write the whole state of the run (map, optimiser, keyframes, poses, tracker,
     masks, RNGs, position) to checkpoints/slam.pt every n frames and before the final pass, so a
     crashed run continues from there with ``resume=true`` (0 = only at the end and on SIGINT /
-    SIGTERM; each one costs a write of the stored keyframes). allocation_stride: back-project every
-    n-th pixel when allocating voxels. evaluate: compute the mesh metrics against the dataset's GT
+    SIGTERM; each one costs a write of the stored keyframes). evaluate: compute the mesh metrics against the dataset's GT
     geometry at the end (where it has one)."""
 
     section: ClassVar[str] = "output"
     image_every: int = setting(50, ge=0)
     save_every: int = setting(25, ge=0)
     checkpoint_every: int = setting(50, ge=0)
-    allocation_stride: int = setting(4, ge=1)
     evaluate: bool = True
+
+
+@dataclass(frozen=True)
+class AllocationConfig(Settings):
+    """Where the map grows (:class:`tivne.slam.allocation.VoxelAllocator`): voxels are allocated where
+    every ``stride``-th pixel's depth lands (on both axes), and ``dilation`` voxels around them."""
+
+    section: ClassVar[str] = "allocation"
+    stride: int = setting(4, ge=1)
+    dilation: int = setting(1, ge=0)
 
 
 @dataclass(frozen=True)
@@ -387,6 +401,6 @@ class ReportConfig(Settings):
 
 
 SECTIONS: tuple[type[Settings], ...] = (
-    RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, OdometryConfig, MappingConfig, KeyframeConfig,
-    SamplerConfig, MeshConfig, OutputConfig, TrainerConfig, ObjectiveConfig, RunDirConfig,
+    RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, FieldTrackingConfig, OdometryConfig, MappingConfig,
+    KeyframeConfig, SamplerConfig, MeshConfig, OutputConfig, AllocationConfig, TrainerConfig, ObjectiveConfig, RunDirConfig,
 )

@@ -20,7 +20,6 @@ from omegaconf import DictConfig
 
 from tivne.cli import mesh_settings, one_line_errors, register_defaults
 from tivne.config import MeshConfig
-from tivne.field.networks import time_to_tau
 from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
 from tivne.slam.checkpoint import camera_centres, load_checkpoint
 from tivne.slam.outputs import RunDir
@@ -48,7 +47,7 @@ def mesh_run(
     run.check_writable()  # before marching cubes, not after
     written = []
     for ts in select_mesh_times(meta["timestamps"], list(cfg.times) or None, every):
-        tau = time_to_tau(ts, meta["t0"], field.time_scale)
+        tau = meta["clock"].tau(ts)
         mesh = extract_mesh(field, tau, cfg.resolution, culling=cfg, camera_centres=camera_centres(meta))
         path = save_mesh(mesh, run.mesh_path(ts))
         written.append((ts, len(mesh.vertices), len(mesh.faces), path))

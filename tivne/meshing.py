@@ -265,7 +265,7 @@ def extract_mesh(
 
     Args:
         field: the map; ``tau`` is ignored when ``field.time`` is False.
-        tau: field time (see :func:`tivne.field.time_to_tau`).
+        tau: field time (see :func:`tivne.field.Clock`).
         resolution: lattice step in metres.
         chunk: points per field evaluation.
         device: where to evaluate; default the field's device (a field elsewhere is copied there).

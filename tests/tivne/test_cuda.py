@@ -10,7 +10,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from tivne.slam.checkpoint import load_checkpoint
-from tivne.train import run
+from tivne.slam.run import run
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")

@@ -80,12 +80,12 @@ def make_run(run_dir: Path, view: SequenceView, meshes: dict[float, trimesh.Trim
 
 def save_sphere_checkpoint(run_dir: Path, view: SequenceView) -> None:
     """A checkpoint of a 0.3 m sphere field (nothing like the cube scene) over the view's frames."""
-    from test_meshing import embedded_sphere, field_kwargs, outside_cameras  # same folder (pytest prepends it to sys.path)
+    from test_meshing import embedded_sphere, outside_cameras  # same folder (pytest prepends it to sys.path)
 
+    from tivne.field.clock import Clock
     from tivne.slam.checkpoint import save_checkpoint
 
-    save_checkpoint(RunDir(run_dir).checkpoint, embedded_sphere(True), field_kwargs(True), list(view.timestamps),
-                    outside_cameras(len(view)), t0=0.0)
+    save_checkpoint(RunDir(run_dir).checkpoint, embedded_sphere(True), list(view.timestamps), outside_cameras(len(view)), Clock(0.0))
 
 
 def test_perfect_run_scores_perfectly(tmp_path, view, gt_meshes):

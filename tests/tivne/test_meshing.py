@@ -12,6 +12,7 @@ import torch
 import trimesh
 
 from tivne.config import MeshConfig
+from tivne.field.clock import Clock
 from tivne.field.networks import FieldOutputs, TimeVaryingField
 from tivne.field.voxels import unpack_keys
 from tivne.mesh import mesh_run, select_mesh_times
@@ -48,7 +49,7 @@ def analytic_sphere(dilation: int = 1) -> AnalyticSphere:
 
 
 def field_kwargs(time: bool) -> dict:
-    return dict(time=time, voxel_size=0.1, embed_dim=4, capacity=64, hidden_dim=8, num_hidden=3, time_frequencies=1)
+    return dict(time=time, voxel_size=0.1, embed_dim=4, capacity=64, hidden_dim=8, num_hidden=3, time_frequencies=1, surface_cell=0.0)
 
 
 def embedded_sphere(time: bool) -> TimeVaryingField:
@@ -178,7 +179,7 @@ def outside_cameras(n: int) -> torch.Tensor:
 def saved_run(tmp_path: Path) -> Path:
     field = embedded_sphere(time=True)
     stamps = [10.0, 10.1, 10.2]
-    save_checkpoint(tmp_path / "checkpoints" / "slam.pt", field, field_kwargs(True), stamps, outside_cameras(3), t0=10.0)
+    save_checkpoint(tmp_path / "checkpoints" / "slam.pt", field, stamps, outside_cameras(3), Clock(10.0, field.time_scale))
     return tmp_path
 
 

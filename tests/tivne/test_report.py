@@ -19,7 +19,7 @@ from tivne.reporting.events import read_scalars
 from tivne.reporting.page import write_report
 from tivne.reporting.raster import look_at, pinhole, rasterize
 from tivne.reporting.trajectory import plot_axes, trajectory_errors
-from tivne.train import run
+from tivne.slam.run import run
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 SMOKE = ["experiment=smoke", "dataset.width=80", "dataset.height=60", "dataset.cache_dir=null"]

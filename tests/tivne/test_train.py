@@ -15,7 +15,7 @@ from hydra import compose, initialize_config_dir
 from data_modules.tables import read_tum_trajectory
 from tivne.config import ConfigError
 from tivne.slam.checkpoint import load_checkpoint
-from tivne.train import run
+from tivne.slam.run import run
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 BASE = ["experiment=smoke", "dataset.cache_dir=null", "output.image_every=2"]
@@ -93,7 +93,7 @@ def test_presets_compose(tmp_path):
         fast, quality, paper = (compose("config", overrides=[f"experiment={e}"]) for e in ("fast", "quality", "paper"))
     assert default.mapping.every == 2 and default.tracking.method == "odometry" and default.mapping.rays == 512
     assert fast.mapping.every == 3 and quality.mapping.every == 1 and quality.mapping.rays == 1024
-    assert paper.tracking.method == "field" and paper.mapping.every == 1 and paper.tracking.iters == 30
+    assert paper.tracking.method == "field" and paper.mapping.every == 1 and paper.field_tracking.iters == 30
     smoke = compose_cfg("mapping.every=2", "data.max_frames=5", "masks=geometric")
     metrics = run(smoke, tmp_path)
     assert metrics["frames"] == 5 and metrics["map_ms_per_iter"] > 0

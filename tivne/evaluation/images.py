@@ -21,7 +21,7 @@ import torch
 from data_modules.sequence import SequenceView
 from data_modules.timestamps import associate_by_timestamp
 from tivne.config import RenderConfig
-from tivne.field.networks import TimeVaryingField, time_to_tau
+from tivne.field.networks import TimeVaryingField
 from tivne.meshing import field_device
 from tivne.metrics.image import lpips, mse, psnr, ssim
 from tivne.render.rays import View
@@ -69,7 +69,7 @@ def rerender_processed(
     """Re-render the processed frames ``pick(n)`` chooses among the n matched ones.
 
     Args:
-        field, meta: a loaded checkpoint (``meta``: ``timestamps`` (N,), ``poses`` (N, 4, 4) c2w, ``t0``).
+        field, meta: a loaded checkpoint (``meta``: ``timestamps`` (N,), ``poses`` (N, 4, 4) c2w, ``clock``).
         view: the sequence the run processed (frames are matched to the checkpoint by timestamp).
         pick: n -> positions in range(n) to render; stride: pixel step.
     Returns:
@@ -84,7 +84,7 @@ def rerender_processed(
     for k in pick(len(i_run)):
         a, b = int(i_run[k]), int(i_view[k])
         frame = view[b]
-        tau = time_to_tau(stamps[a], meta["t0"], field.time_scale)
+        tau = meta["clock"].tau(stamps[a])
         posed = View(b, tau, frame.rgb.to(device), frame.depth.to(device), None, poses[a].to(device=device, dtype=torch.float32))
         rgb, depth = render_image(field, posed, K, render, stride)
         out.append(Rerendered(a, b, frame, rgb.cpu(), depth.cpu()))

@@ -22,7 +22,7 @@ from tivne.config import ConfigError, MeshConfig, MeshEvalSettings, RenderConfig
 from tivne.evaluation.ground_truth import GroundTruth, as_view, ground_truth_of
 from tivne.evaluation.images import image_metrics, null_images, render_frames
 from tivne.evaluation.surfaces import flatten_mesh_metrics, mesh_time_metrics
-from tivne.field.networks import TimeVaryingField, time_to_tau
+from tivne.field.networks import TimeVaryingField
 from tivne.meshing import TIME_TOLERANCE_S, extract_mesh, select_mesh_times
 from tivne.metrics.trajectory import ATEResult, ate_from_trajectories
 from tivne.slam.checkpoint import camera_centres, load_checkpoint
@@ -174,7 +174,7 @@ def run_meshes(
             loaded = trimesh.load(path, force="mesh", process=False)
             meshes[t] = loaded if isinstance(loaded, trimesh.Trimesh) else trimesh.Trimesh()
         elif record.field is not None:
-            tau = time_to_tau(t, record.meta["t0"], record.field.time_scale)
+            tau = record.meta["clock"].tau(t)
             meshes[t] = extract_mesh(record.field, tau, mesh.resolution, culling=mesh, camera_centres=camera_centres(record.meta))
     missing = [t for t in times if t not in meshes]
     reason = f"no mesh file and no checkpoint ({RunDir.CHECKPOINT}) for t={missing}" if missing else None

@@ -1,11 +1,11 @@
+from tivne.field.clock import Clock
 from tivne.field.networks import (
     CanonicalMLP,
     DeformationMLP,
     FieldOutputs,
     TimeVaryingField,
     time_encoding,
-    time_to_tau,
 )
 from tivne.field.voxels import GridCapacityError, SparseVoxelGrid
 
-__all__ = ["CanonicalMLP", "DeformationMLP", "FieldOutputs", "GridCapacityError", "SparseVoxelGrid", "TimeVaryingField", "time_encoding", "time_to_tau"]
+__all__ = ["CanonicalMLP", "Clock", "DeformationMLP", "FieldOutputs", "GridCapacityError", "SparseVoxelGrid", "TimeVaryingField", "time_encoding"]

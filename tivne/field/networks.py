@@ -2,19 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import nn
 
+from tivne.config import FieldConfig
 from tivne.field.voxels import SparseVoxelGrid
-
-
-def time_to_tau(timestamp: float, t0: float, time_scale: float) -> float:
-    """Field time τ = (t - t0) · time_scale: 0 on the first frame, never normalised by the sequence
-    length (it is unknown online)."""
-    return (float(timestamp) - float(t0)) * float(time_scale)
 
 
 def time_encoding(tau: torch.Tensor, num_frequencies: int, lowest_octave: int = 0) -> torch.Tensor:
@@ -107,31 +104,19 @@ class TimeVaryingField(nn.Module):
     """E + Θd + Θs. With ``time=False`` it is a static Vox-Fusion-like field on the same code path
     (no Θd, no time input)."""
 
-    def __init__(
-        self,
-        time: bool = True,
-        voxel_size: float = 0.1,
-        embed_dim: int = 16,
-        capacity: int = 20000,
-        max_capacity: int = 2_000_000,
-        init_std: float = 0.01,
-        hidden_dim: int = 64,
-        num_hidden: int = 3,
-        time_frequencies: int = 4,
-        time_lowest_octave: int = 0,
-        time_scale: float = 1.0,
-        offset_ramp: float = 0.1,
-        allocation_dilation: int = 1,
-        canonical_time: bool = False,
-        surface_cell: float = 0.0,
-    ) -> None:
+    def __init__(self, cfg: FieldConfig | None = None, **overrides: Any) -> None:
+        """Built from its config section (:class:`tivne.config.FieldConfig`, the one source of the
+        defaults); keyword ``overrides`` replace single settings (tests, tools)."""
         super().__init__()
+        cfg = dataclasses.replace(cfg or FieldConfig(), **overrides)
+        self.cfg = cfg
+        time, embed_dim, hidden_dim, num_hidden = cfg.time, cfg.embed_dim, cfg.hidden_dim, cfg.num_hidden
         self.time = bool(time)
-        self.time_scale = float(time_scale)
-        self.time_frequencies = int(time_frequencies)
-        self.time_lowest_octave = int(time_lowest_octave)
-        self.allocation_dilation = int(allocation_dilation)
-        self.grid = SparseVoxelGrid(voxel_size, embed_dim, capacity, max_capacity, init_std, surface_cell)
+        self.time_scale = float(cfg.time_scale)
+        self.time_frequencies = int(cfg.time_frequencies)
+        self.time_lowest_octave = int(cfg.time_lowest_octave)
+        offset_ramp, canonical_time = cfg.offset_ramp, cfg.canonical_time
+        self.grid = SparseVoxelGrid(cfg.voxel_size, embed_dim, cfg.capacity, cfg.max_capacity, cfg.init_std, cfg.surface_cell)
         time_dim = 1 + 2 * self.time_frequencies if self.time else 0
         self.deformation = DeformationMLP(embed_dim, time_dim, hidden_dim, num_hidden, offset_ramp) if self.time else None
         # Θs sees τ only when asked: trained on past times, a time input extrapolates arbitrarily at

@@ -55,11 +55,12 @@ class MaskProvider:
         """A mask for ``frame`` before its pose is known (for tracking); None = unknown."""
         return None
 
-    def revise(self, keyframes: list, current, K: torch.Tensor) -> int:
-        """Grow earlier keyframes' masks in place with what ``current`` (a tracked View) shows about
-        them (a moving object is often only recognisable once it has moved away); returns how many
-        masks grew. Default: masks are final."""
-        return 0
+    def revise(self, keyframes: list, current, K: torch.Tensor) -> dict[int, torch.Tensor]:
+        """The grown masks of earlier keyframes (Views with their poses), from what ``current`` (a
+        tracked View) shows about them (a moving object is often only recognisable once it has moved
+        away): {frame id: (H, W) bool} of the masks that grew; the caller stores them. Default: masks
+        are final."""
+        return {}
 
     def state_dict(self) -> dict:
         """What the provider carries from frame to frame (tensors, numbers, lists; no numpy), for a
@@ -90,7 +91,7 @@ class DatasetMasks(MaskProvider):
 
 class RecordingMasks(MaskProvider):
     """Wraps a provider and keeps every mask it returns, with the frame's GT mask and timestamp (per
-    frame index) -- for benchmarks: hand it to :func:`tivne.train.run` (``masks=``) and read it after.
+    frame index) -- for benchmarks: hand it to :func:`tivne.slam.run.run` (``masks=``) and read it after.
     """
 
     def __init__(self, inner: MaskProvider) -> None:
@@ -104,7 +105,7 @@ class RecordingMasks(MaskProvider):
     def predict(self, frame: Frame) -> torch.Tensor | None:
         return self.inner.predict(frame)
 
-    def revise(self, keyframes: list, current, K: torch.Tensor) -> int:
+    def revise(self, keyframes: list, current, K: torch.Tensor) -> dict[int, torch.Tensor]:
         return self.inner.revise(keyframes, current, K)
 
     def state_dict(self) -> dict:

@@ -181,19 +181,19 @@ class GeometricMasks(MaskProvider):
             low = torch.nn.functional.max_pool2d(low, 2 * r + 1, stride=1, padding=r)
         return upsample_mask(low[0, 0] > 0, self.stride, frame.depth)
 
-    def revise(self, keyframes: list, current, K: torch.Tensor) -> int:
+    def revise(self, keyframes: list, current, K: torch.Tensor) -> dict[int, torch.Tensor]:
         """The static-world test backwards: a keyframe's points that the current frame sees as free
         space have moved away since. With ``revise_lags`` = (a, b), keyframes a..b frames back are
         re-tested against the current frame and their masks grow by the cleaned result (never
         shrink), so the object is masked in them -- and in mapping -- even where it was still too
-        slow to be caught when they were taken (``source='frames'`` only)."""
+        slow to be caught when they were taken (``source='frames'`` only). Returns {frame id: grown mask}."""
         if self.source != "frames" or self.revise_lags is None:
-            return 0
+            return {}
         s = self.stride
         lo, hi = self.revise_lags
         ref_depth = current.depth[::s, ::s]
         Kl = self._low_K(K)
-        grown = 0
+        grown: dict[int, torch.Tensor] = {}
         for kf in keyframes:
             if not lo <= current.frame_id - kf.frame_id <= hi:
                 continue
@@ -204,8 +204,7 @@ class GeometricMasks(MaskProvider):
             full = upsample_mask(torch.from_numpy(low), s, kf.depth) & (kf.depth > 0)
             new = full if kf.dynamic is None else full | kf.dynamic
             if kf.dynamic is None or bool((new & ~kf.dynamic).any()):
-                kf.dynamic = new
-                grown += 1
+                grown[int(kf.frame_id)] = new
         return grown
 
     def _score(self, residual: torch.Tensor | None) -> np.ndarray | None:

@@ -10,10 +10,10 @@ import torch
 from tivne.geometry import pixel_to_ray
 
 
-@dataclass
+@dataclass(frozen=True)
 class View:
     """A frame at the field's time ``tau`` with a camera-to-world pose: what tracking, mapping and
-    image rendering need of it.
+    image rendering need of it (frozen: a changed pose or mask is a new View).
 
     rgb (H, W, 3) float in [0, 1], or uint8 (stored keyframes); depth (H, W) metres, 0 = invalid; dynamic (H, W) bool (True = moving
     object) or None without a motion mask; pose (4, 4) c2w.

@@ -40,7 +40,7 @@ def render_pairs(
     """Re-render ``count`` evenly spaced processed frames of a run.
 
     Args:
-        field, meta: a loaded checkpoint (``meta``: ``timestamps`` (N,), ``poses`` (N, 4, 4), ``t0``).
+        field, meta: a loaded checkpoint (``meta``: ``timestamps`` (N,), ``poses`` (N, 4, 4), ``clock``).
         view: the sequence the run processed (frames matched to the checkpoint by timestamp).
     """
     stamps = np.asarray(meta["timestamps"], dtype=np.float64)

@@ -1,12 +1,12 @@
-"""A run's checkpoint, ``checkpoints/slam.pt``: the field, its construction arguments and the
+"""A run's checkpoint, ``checkpoints/slam.pt``: the field, its config section, the clock and the
 trajectory (what ``tivne.mesh`` and ``tivne.evaluate`` read), plus the whole state of the run
 (``resume``) so that ``tivne.train ... resume=true`` continues an interrupted run where it stood.
 
 The resume state is taken between two frames (every ``output.checkpoint_every`` frames, before the
-final pass, on SIGINT / SIGTERM) and holds everything the next frame depends on: the map optimiser
-(Adam's moments, padded to E), the keyframe store, the per-frame pose records, the odometry
-reference, the motion model's poses, the mask provider's state, counters and timers, every RNG and
-the position in the stream. Restored, a run continues as the uninterrupted one would have.
+final pass, on SIGINT / SIGTERM): :meth:`tivne.slam.loop.SlamLoop.state_dict` (the map optimiser,
+the keyframe store with its poses, the per-frame pose records, the tracker's reference and counters,
+the mask provider's state, the clock, timers, the loop's generator and the position in the stream)
+plus the global RNGs. Restored, a run continues as the uninterrupted one would have.
 
 Every file is written atomically; a missing, truncated or foreign file is one :class:`DatasetError`
 line, never a deserialiser's traceback.
@@ -17,32 +17,29 @@ from __future__ import annotations
 import dataclasses
 import random
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import torch
 
 from data_modules.frame import DatasetError
 from data_modules.io import atomic_write
+from tivne.config import ConfigError, FieldConfig
+from tivne.field.clock import Clock
 from tivne.field.networks import TimeVaryingField
-from tivne.masks.base import MaskProvider
-from tivne.render.rays import View
-from tivne.slam.frontend import Tracker
-from tivne.slam.keyframes import KeyframeDatabase, view_from_state, view_state
-from tivne.slam.mapping import Mapper
 from tivne.slam.outputs import RunDirError, config_differences, describe_differences
-from tivne.slam.trajectory import Trajectory
 
-FORMAT = 2  # 1: field + trajectory; 2: + the resume state and the run's config
+# 1: field + trajectory; 2: + the resume state and the run's config; 3: the field's config section
+# and the clock (was: constructor arguments and t0), the loop's state (no copy of the motion poses)
+FORMAT = 3
 
 
 def save_checkpoint(
     path: str | Path,
     field: TimeVaryingField,
-    field_kwargs: dict[str, Any],
     timestamps: list[float],
     poses: torch.Tensor,
-    t0: float,
+    clock: Clock,
     extra: dict[str, Any] | None = None,
     resume: dict[str, Any] | None = None,
     config: dict[str, Any] | None = None,
@@ -50,20 +47,20 @@ def save_checkpoint(
     """Write the field and trajectory atomically (tmp file + rename).
 
     Args:
-        field_kwargs: the keyword arguments the field was built with (rebuilds it on load).
-        timestamps: (N,) seconds of the processed frames; poses: (N, 4, 4) c2w; t0: the time of τ = 0.
-        resume: :func:`run_state` (None: a checkpoint that cannot be resumed).
+        field: saved with its config section (``field.cfg``, which rebuilds it on load).
+        timestamps: (N,) seconds of the processed frames; poses: (N, 4, 4) c2w; clock: τ of a timestamp.
+        resume: the loop's state and the global RNGs (None: a checkpoint that cannot be resumed).
         config: the run's composed config (plain values), which a resumed run must repeat.
     Raises:
         OSError: naming ``path`` (full disk, read-only folder); the old file stays as it was.
     """
     payload = {
         "format": FORMAT,
-        "field_kwargs": dict(field_kwargs),
+        "field_config": dataclasses.asdict(field.cfg),
         "field_state": {k: v.detach().cpu() for k, v in field.state_dict().items()},
         "timestamps": [float(t) for t in timestamps],
         "poses": poses.detach().cpu().double(),
-        "t0": float(t0),
+        "clock": clock.state_dict(),
         "extra": extra or {},
         "config": config,
         "resume": None if resume is None else to_device(resume, "cpu"),
@@ -88,8 +85,10 @@ def read_checkpoint(path: str | Path, mmap: bool = False) -> dict[str, Any]:
         payload = torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
     except Exception as exc:  # noqa: BLE001 -- a truncated or foreign file, whatever the reader says
         raise DatasetError(path, f"not a readable TivNe checkpoint (truncated or another kind of file: {type(exc).__name__})") from None
-    if not isinstance(payload, dict) or not {"field_kwargs", "field_state", "timestamps"} <= set(payload):
+    if not isinstance(payload, dict) or "field_state" not in payload or "timestamps" not in payload:
         raise DatasetError(path, "not a TivNe checkpoint (no field state)")
+    if payload.get("format") != FORMAT:
+        raise DatasetError(path, f"written by another version of TivNe (checkpoint format {payload.get('format')}, this version reads {FORMAT}); re-run it")
     return payload
 
 
@@ -108,13 +107,14 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
     path = Path(path)
     payload = read_checkpoint(path, mmap=True)
     try:
-        field = TimeVaryingField(**payload["field_kwargs"])
+        field = TimeVaryingField(FieldConfig.from_mapping(payload["field_config"]))
         load_field_state(field, payload["field_state"])
-    except (KeyError, TypeError, RuntimeError) as exc:  # written by an incompatible version
+    except (KeyError, TypeError, RuntimeError, ConfigError) as exc:  # written by an incompatible version
         first_line = str(exc).strip().splitlines()[-1].strip()
         raise DatasetError(path, f"checkpoint does not match this version of the field ({first_line})") from None
     field.to(device).eval()
     meta = {k: v for k, v in payload.items() if k not in ("field_state", "resume")}
+    meta["clock"] = Clock.from_state(payload["clock"])
     return field, meta
 
 
@@ -127,25 +127,6 @@ def camera_centres(meta: dict[str, Any]) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------ resume
-
-
-class ResumableRun(Protocol):
-    """What :func:`run_state` reads of a running system (:class:`tivne.slam.system.TivNeSLAM`)."""
-
-    field: TimeVaryingField
-    mapper: Mapper
-    db: KeyframeDatabase
-    trajectory: Trajectory
-    tracker: Tracker
-    masks: MaskProvider
-    tracked: list[torch.Tensor]
-    t0: float | None
-    last_mapped_tau: float
-    last_view: View | None
-    final_pass_done: bool
-    counts: Any
-    timers: Any
-    generator: torch.Generator
 
 
 def global_rng_state() -> dict[str, Any]:
@@ -167,58 +148,6 @@ def set_global_rng_state(state: dict[str, Any]) -> None:
     np.random.set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["gauss"]))
     version, internal, gauss = state["python"]
     random.setstate((version, tuple(internal), gauss))
-
-
-def run_state(run: ResumableRun) -> dict[str, Any]:
-    """Everything the next frame of ``run`` depends on but the field (saved beside it)."""
-    last = run.last_view
-    if last is None:
-        last_state: Any = None
-    elif run.db.views and last is run.db.views[-1]:
-        last_state = "keyframe"  # the same object: keep it one
-    else:
-        last_state = view_state(last)
-    return {
-        "position": len(run.trajectory),
-        "final_pass_done": bool(run.final_pass_done),
-        "mapper": run.mapper.state_dict(),
-        "keyframes": run.db.state_dict(),
-        "trajectory": run.trajectory.state_dict(),
-        "tracker": run.tracker.state_dict(),
-        "masks": run.masks.state_dict(),
-        "motion": [p.detach() for p in run.tracked],
-        "t0": run.t0,
-        "last_mapped_tau": float(run.last_mapped_tau),
-        "last_view": last_state,
-        "counts": dataclasses.asdict(run.counts),
-        "timers": dataclasses.asdict(run.timers),
-        "generator": run.generator.get_state(),
-        "rng": global_rng_state(),
-    }
-
-
-def restore_run_state(run: ResumableRun, payload: dict[str, Any], device: torch.device | str) -> dict[str, Any]:
-    """Put ``run`` (freshly built from the same config, on ``device``) where the checkpoint
-    ``payload`` left it. Returns the global RNG state, to be set just before the next frame (the
-    data loader draws from the torch RNG when it starts)."""
-    state = payload["resume"]
-    rng = state["rng"]
-    load_field_state(run.field, to_device(payload["field_state"], device))
-    state = to_device({k: v for k, v in state.items() if k not in ("rng", "generator")}, device)
-    run.mapper.load_state_dict(state["mapper"])  # after the field: E has its saved rows
-    run.db.load_state_dict(state["keyframes"])
-    run.trajectory.load_state_dict(state["trajectory"])
-    run.tracker.load_state_dict(state["tracker"])
-    run.masks.load_state_dict(state["masks"])
-    run.tracked = list(state["motion"])
-    run.t0, run.last_mapped_tau = state["t0"], float(state["last_mapped_tau"])
-    last = state["last_view"]
-    run.last_view = run.db.views[-1] if last == "keyframe" else None if last is None else view_from_state(last)
-    run.final_pass_done = bool(state["final_pass_done"])
-    run.counts = type(run.counts)(**state["counts"])
-    run.timers = type(run.timers)(**state["timers"])
-    run.generator.set_state(payload["resume"]["generator"].cpu())
-    return rng
 
 
 def to_device(tree: Any, device: torch.device | str) -> Any:

@@ -3,7 +3,9 @@ and the final pass over every keyframe after the sequence."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import torch
 
@@ -14,14 +16,35 @@ from tivne.render.losses import slam_loss
 from tivne.render.rays import View
 from tivne.render.renderer import render_pixels
 from tivne.render.samplers import PixelPool, PixelSampler
+from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
+
+
+@dataclass(frozen=True)
+class MapRound:
+    """One mapping round: the frame ids of its window (the current frame first), the refined poses
+    ({frame id: (4, 4) c2w}, only where they could move) and the last step's loss terms."""
+
+    window: tuple[int, ...]
+    poses: dict[int, torch.Tensor]
+    terms: dict[str, float]
+
+    def scalars(self) -> dict[str, float]:
+        """Log scalars (TensorBoard ``map/...``)."""
+        out = {f"loss_{n}" if n != "total" else "loss": v for n, v in self.terms.items()}
+        return out | {"window": float(len(self.window))}
 
 
 class Mapper:
-    """Owns the map optimiser (persistent Adam over E and both MLPs, per-group learning rates)."""
+    """Owns the map optimiser (persistent Adam over E and both MLPs, per-group learning rates), the
+    pixel sampler and the render / loss settings of mapping."""
 
-    def __init__(self, field: TimeVaryingField, cfg: MappingConfig) -> None:
+    def __init__(
+        self, field: TimeVaryingField, cfg: MappingConfig, sampler: PixelSampler, render: RenderConfig, weights: LossWeights
+    ) -> None:
         self.field = field
         self.cfg = cfg
+        self.sampler, self.render, self.weights = sampler, render, weights
+        self.seconds, self.iterations = 0.0, 0  # time and steps spent in online rounds
         decoder = [p for n, p in field.named_parameters() if not n.startswith("grid.")]
         # foreach: one kernel per update for the ~20 small MLP tensors instead of a Python loop over them
         self.optimizer = torch.optim.Adam(
@@ -48,15 +71,31 @@ class Mapper:
             moment = state[key]
             state[key] = torch.cat([moment, moment.new_zeros(new_rows - old_rows, moment.shape[1])])
 
+    def map_frame(
+        self, view: View, store: KeyframeStore, policy: KeyframePolicy, K: torch.Tensor, generator: torch.Generator | None, first: bool
+    ) -> MapRound:
+        """A mapping round on ``view`` (the current frame, tracked) and the keyframes ``policy`` picks;
+        the first frame alone gets ``first_iters`` steps with its pose fixed (it is the world frame)."""
+        if first:
+            views, fixed, iters = [view], [True], self.cfg.first_iters
+        else:
+            picked = policy.select(store, view, K, generator)
+            views = [view] + [store.view(i) for i in picked]
+            fixed = [False] + [v.frame_id == 0 for v in views[1:]]
+            iters = self.cfg.iters
+        start = time.perf_counter()
+        poses, terms = self.run(views, fixed, iters, K, generator)
+        self.seconds += time.perf_counter() - start
+        self.iterations += iters
+        moved = {v.frame_id: p for v, p, f in zip(views, poses, fixed) if not f and self.cfg.optimize_poses}
+        return MapRound(tuple(v.frame_id for v in views), moved, terms)
+
     def run(
         self,
         views: list[View],
         fixed: list[bool],
         iters: int,
         K: torch.Tensor,
-        sampler: PixelSampler,
-        render: RenderConfig,
-        weights: LossWeights,
         generator: torch.Generator | None = None,
         current_share: float | None = None,
     ) -> tuple[torch.Tensor, dict[str, float]]:
@@ -80,9 +119,9 @@ class Mapper:
         self.steps += iters
         for _ in range(iters):
             poses = base @ se3_exp(pose_delta * movable) if pose_opt is not None else base
-            pixels = [sampler(pool, n, generator) for pool, n in zip(pools, counts)]
-            batch = render_pixels(self.field, views, pixels, poses, K, render, True, generator)
-            loss, terms = slam_loss(batch, render.truncation, weights)
+            pixels = [self.sampler(pool, n, generator) for pool, n in zip(pools, counts)]
+            batch = render_pixels(self.field, views, pixels, poses, K, self.render, True, generator)
+            loss, terms = slam_loss(batch, self.render.truncation, self.weights)
             if not torch.isfinite(loss) or not loss.requires_grad:  # never step the map on a broken batch
                 skipped += 1
                 continue
@@ -109,15 +148,7 @@ def grads_finite(optimizer: torch.optim.Optimizer) -> bool:
     return not grads or bool(torch.isfinite(torch.nn.utils.get_total_norm(grads)))
 
 
-def final_pass(
-    mapper: Mapper,
-    views: Sequence[View],
-    K: torch.Tensor,
-    sampler: PixelSampler,
-    render: RenderConfig,
-    weights: LossWeights,
-    generator: torch.Generator | None = None,
-) -> dict[str, float]:
+def final_pass(mapper: Mapper, views: Sequence[View], K: torch.Tensor, generator: torch.Generator | None = None) -> dict[str, float]:
     """The last pass over the whole sequence (Co-SLAM's final global BA, poses fixed).
 
     ``mapping.final_share`` of the steps mapping ran so far, at most ``mapping.final_iters``, in
@@ -137,9 +168,6 @@ def final_pass(
             order += [i for i in torch.randperm(len(views), generator=generator).tolist() if i not in order]
         picked, order = order[:window], order[window:]
         iters = max(1, min(cfg.iters, budget - done))
-        _, terms = mapper.run(
-            [views[i] for i in picked], [True] * window, iters, K, sampler, render, weights, generator,
-            current_share=1.0 / window,
-        )
+        _, terms = mapper.run([views[i] for i in picked], [True] * window, iters, K, generator, current_share=1.0 / window)
         done += iters
     return terms

@@ -3,6 +3,7 @@ refining the keyframe moves the frames tracked from it."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -54,6 +55,12 @@ class Trajectory:
             [r.relative if r.keyframe is None else keyframe_poses[r.keyframe] @ r.relative for r in self.records]
         ).detach().cpu().double()
 
+    def pose(self, index: int, keyframe_poses: dict[int, torch.Tensor]) -> torch.Tensor:
+        """(4, 4) float64 c2w pose of the ``index``-th processed frame (negative: from the end)."""
+        r = self.records[index]
+        rel = r.relative.double()
+        return rel if r.keyframe is None else keyframe_poses[r.keyframe].double() @ rel
+
     def timestamps(self) -> list[float]:
         return [r.timestamp for r in self.records]
 
@@ -88,6 +95,30 @@ class Trajectory:
         est = self.poses(keyframe_poses)[keep]
         gt = torch.stack([self.records[i].gt_pose for i in keep]).detach().cpu().double()
         return absolute_trajectory_error(est.numpy(), gt.numpy(), align="se3")
+
+
+class PoseBook:
+    """Every pose of a run, read from its owners: keyframe poses from the keyframe store (the one
+    place they change), every other frame relative to its keyframe in the :class:`Trajectory`.
+    What tracking reads (the reference's pose, the motion model's last two) and what is written."""
+
+    def __init__(self, trajectory: Trajectory, keyframe_poses: Callable[[], dict[int, torch.Tensor]]) -> None:
+        self.trajectory = trajectory
+        self.keyframe_poses = keyframe_poses
+
+    def pose(self, frame_id: int) -> torch.Tensor:
+        """(4, 4) float64 c2w of a processed frame (the stream index is the frame id)."""
+        return self.trajectory.pose(frame_id, self.keyframe_poses())
+
+    def recent(self, n: int) -> list[torch.Tensor]:
+        """The last ``n`` processed frames' (4, 4) float64 c2w poses, oldest first (fewer early on)."""
+        kf = self.keyframe_poses()
+        count = min(n, len(self.trajectory))
+        return [self.trajectory.pose(i, kf) for i in range(-count, 0)]
+
+    def all(self) -> torch.Tensor:
+        """(N, 4, 4) float64 c2w of every processed frame."""
+        return self.trajectory.poses(self.keyframe_poses())
 
 
 def stack64(poses: list[torch.Tensor]) -> torch.Tensor:

@@ -281,13 +281,14 @@ def test_hits_count_observed_voxels_not_the_dilation_shell():
 
 
 def test_hits_survive_a_checkpoint_and_old_checkpoints_count_as_observed(tmp_path):
+    from tivne.field.clock import Clock
     from tivne.field.networks import TimeVaryingField
     from tivne.slam.checkpoint import load_checkpoint, save_checkpoint
 
     kwargs = dict(time=False, voxel_size=0.1, embed_dim=4, capacity=8, hidden_dim=8, num_hidden=3, time_frequencies=1)
     field = TimeVaryingField(**kwargs)
     field.grid.allocate(torch.tensor([[0.05, 0.05, 0.05], [0.95, 0.05, 0.05]]), dilation=1)
-    path = save_checkpoint(tmp_path / "a.pt", field, kwargs, [0.0], torch.eye(4)[None], 0.0)
+    path = save_checkpoint(tmp_path / "a.pt", field, [0.0], torch.eye(4)[None], Clock(0.0))
     back, _ = load_checkpoint(path)
     assert torch.equal(back.grid.voxel_hits, field.grid.voxel_hits) and int((back.grid.voxel_hits > 0).sum()) == 2
     payload = torch.load(path, weights_only=True)
@@ -330,6 +331,7 @@ def test_a_moving_object_shows_where_it_was_seen_around_tau_not_along_its_path()
 
 
 def test_surface_record_holds_static_depth_cells_and_survives_a_checkpoint(tmp_path):
+    from tivne.field.clock import Clock
     from tivne.field.networks import TimeVaryingField
     from tivne.slam.checkpoint import load_checkpoint, save_checkpoint
 
@@ -342,5 +344,5 @@ def test_surface_record_holds_static_depth_cells_and_survives_a_checkpoint(tmp_p
     assert unpack_keys(grid.surface_keys).tolist() == [[0, 0, 0]]
     probe = torch.tensor([[0.01, 0.01, 0.01], [0.03, -0.01, 0.03], [0.07, 0.01, 0.01], [0.51, 0.01, 0.01]])
     assert grid.near_surface(probe).tolist() == [True, True, False, False]  # one cell around; not the moving point
-    back, _ = load_checkpoint(save_checkpoint(tmp_path / "a.pt", field, kwargs, [0.0], torch.eye(4)[None], 0.0))
+    back, _ = load_checkpoint(save_checkpoint(tmp_path / "a.pt", field, [0.0], torch.eye(4)[None], Clock(0.0)))
     assert torch.equal(back.grid.surface_keys, grid.surface_keys) and back.grid.surface_cell == 0.02

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 from types import SimpleNamespace
@@ -119,11 +120,13 @@ def test_geometric_revise_masks_an_earlier_keyframe_once_the_object_has_left():
     too_recent = View(8, 8 / 30, rgb, then_d, None, torch.eye(4))
     current = View(10, 10 / 30, rgb, now_d, torch.zeros(H, W, dtype=torch.bool), torch.eye(4))
     provider = GeometricMasks(source="frames", stride=1, min_area=4, revise_lags=(5, 30))
-    assert provider.revise([keyframe, too_recent], current, K) == 1
-    assert (keyframe.dynamic & then).sum() / (keyframe.dynamic | then).sum() > 0.8
-    assert too_recent.dynamic is None  # 2 frames back: outside revise_lags
-    before = keyframe.dynamic.clone()
-    assert provider.revise([keyframe], current, K) == 0 and torch.equal(keyframe.dynamic, before)  # only grows
-    assert GeometricMasks(revise_lags=None).revise([keyframe], current, K) == 0
-    assert DatasetMasks().revise([keyframe], current, K) == 0
-    assert RecordingMasks(provider).revise([keyframe], current, K) == 0
+    grown = provider.revise([keyframe, too_recent], current, K)
+    assert list(grown) == [0]  # 2 frames back (too_recent): outside revise_lags
+    mask = grown[0]
+    assert (mask & then).sum() / (mask | then).sum() > 0.8
+    assert not keyframe.dynamic.any()  # the View is not changed: the caller stores the grown mask
+    keyframe = dataclasses.replace(keyframe, dynamic=mask)
+    assert provider.revise([keyframe], current, K) == {}  # only grows
+    assert GeometricMasks(revise_lags=None).revise([keyframe], current, K) == {}
+    assert DatasetMasks().revise([keyframe], current, K) == {}
+    assert RecordingMasks(provider).revise([keyframe], current, K) == {}

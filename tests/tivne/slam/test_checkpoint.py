@@ -15,7 +15,7 @@ from hydra import compose, initialize_config_dir
 from data_modules.frame import DatasetError
 from tivne.slam.checkpoint import load_checkpoint, read_checkpoint
 from tivne.slam.outputs import RunDirError
-from tivne.train import build_system, run
+from tivne.slam.run import build_system, run
 
 CONF = Path(__file__).resolve().parents[3] / "conf"
 
@@ -44,23 +44,24 @@ def test_a_restored_system_continues_exactly_as_the_uninterrupted_one(tmp_path, 
     resumed = build_system(cfg, tiny_cube.intrinsics, tmp_path / "resumed")
     assert resumed.resume_from(read_checkpoint(tmp_path / "at3.pt")) == 3
     resumed.on_train_start()
-    assert len(resumed.trajectory) == 3 and resumed.db.frame_ids() == [0, 2]
+    r, w = resumed.loop, whole.loop
+    assert len(r) == 3 and r.keyframes.frame_ids() == [0, 2] and r.clock == w.clock
     feed(resumed, frames[3:], 3)
     # Equal up to the last bits in which two identical uninterrupted runs differ too (threaded sums on the CPU).
-    torch.testing.assert_close(resumed.poses(), whole.poses(), atol=1e-6, rtol=0)
-    for name, value in whole.field.state_dict().items():
-        torch.testing.assert_close(resumed.field.state_dict()[name], value, atol=1e-5, rtol=0, msg=name)
-    assert resumed.mapper.steps == whole.mapper.steps and resumed.timers.per_frame[:3] == whole.timers.per_frame[:3]
-    assert torch.equal(resumed.generator.get_state(), whole.generator.get_state())
-    assert [v.frame_id for v in resumed.db.views] == [v.frame_id for v in whole.db.views]
-    assert all(a.rgb.dtype == torch.uint8 and torch.equal(a.rgb, b.rgb) for a, b in zip(resumed.db.views, whole.db.views))
+    torch.testing.assert_close(r.poses.all(), w.poses.all(), atol=1e-6, rtol=0)
+    for name, value in w.field.state_dict().items():
+        torch.testing.assert_close(r.field.state_dict()[name], value, atol=1e-5, rtol=0, msg=name)
+    assert r.mapper.steps == w.mapper.steps and r.timers.per_frame[:3] == w.timers.per_frame[:3]
+    assert torch.equal(r.generator.get_state(), w.generator.get_state())
+    assert r.keyframes.frame_ids() == w.keyframes.frame_ids() and r.tracker.reference.frame_id == w.tracker.reference.frame_id
+    assert all(a.rgb.dtype == torch.uint8 and torch.equal(a.rgb, b.rgb) for a, b in zip(r.keyframes.records, w.keyframes.records))
 
 
 def test_a_failed_write_keeps_the_old_checkpoint_and_leaves_no_temporary(tmp_path, tiny_cube, monkeypatch):
     cfg = smoke_cfg("output.save_every=0", "output.checkpoint_every=0")
     system = build_system(cfg, tiny_cube.intrinsics, tmp_path)
     feed(system, [tiny_cube[0], tiny_cube[1]], 0)
-    path = system.save_checkpoint()
+    path = system.writer.save_checkpoint(system.loop)
     before = path.read_bytes()
     feed(system, [tiny_cube[2]], 2)
 
@@ -70,11 +71,11 @@ def test_a_failed_write_keeps_the_old_checkpoint_and_leaves_no_temporary(tmp_pat
 
     monkeypatch.setattr(torch, "save", full_disk)
     with pytest.raises(OSError) as info:
-        system.save_checkpoint()
+        system.writer.save_checkpoint(system.loop)
     assert info.value.errno == errno.ENOSPC and info.value.filename == str(path)  # the file asked for, not a temporary
     monkeypatch.setattr(torch, "save", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("PytorchStreamWriter failed")))
     with pytest.raises(RuntimeError):
-        system.save_checkpoint()
+        system.writer.save_checkpoint(system.loop)
     assert path.read_bytes() == before and sorted(p.name for p in path.parent.iterdir()) == ["slam.pt"]
 
 
@@ -90,13 +91,18 @@ def test_unreadable_checkpoints_are_one_line(tmp_path, tiny_cube):
         read_checkpoint(path)
     system = build_system(smoke_cfg("output.save_every=0"), tiny_cube.intrinsics, tmp_path / "run")
     feed(system, [tiny_cube[0]], 0)
-    good = system.save_checkpoint(resumable=False)
+    good = system.writer.save_checkpoint(system.loop, resumable=False)
     field, meta = load_checkpoint(good)  # mesh and evaluate read it
     assert meta["timestamps"] == [0.0] and "resume" not in meta and field.grid.num_voxels > 0
+    assert meta["clock"] == system.loop.clock and field.cfg == system.loop.field.cfg  # one source of τ and of the field's settings
     from tivne.slam.checkpoint import check_resumable
 
     with pytest.raises(RunDirError, match="holds no resume state"):
         check_resumable(good)
+    payload = torch.load(good, weights_only=True)
+    torch.save(payload | {"format": 2}, tmp_path / "old.pt")
+    with pytest.raises(DatasetError, match="written by another version of TivNe .checkpoint format 2"):
+        read_checkpoint(tmp_path / "old.pt")  # an old checkpoint is refused in one line
     good.write_bytes(good.read_bytes()[:-100])
     with pytest.raises(DatasetError, match="not a readable TivNe checkpoint"):
         check_resumable(good)
@@ -109,7 +115,7 @@ def test_a_crash_in_the_final_pass_resumes_from_the_checkpoint_before_it(tmp_pat
     def crash(*args, **kwargs):
         raise RuntimeError("power cut")
 
-    monkeypatch.setattr("tivne.slam.system.final_pass", crash)
+    monkeypatch.setattr("tivne.slam.loop.final_pass", crash)
     with pytest.raises(RuntimeError, match="power cut"):
         run(smoke_cfg(*overrides), tmp_path / "crashed")
     assert not (tmp_path / "crashed" / "metrics.json").exists()

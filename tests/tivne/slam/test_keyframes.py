@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 
 import pytest
@@ -9,7 +11,7 @@ import torch
 
 from tivne.config import KeyframeConfig
 from tivne.render.rays import View
-from tivne.slam.keyframes import KeyframeDatabase, KeyframePolicy, overlap_ratios
+from tivne.slam.keyframes import KeyframePolicy, KeyframeStore, overlap_ratios
 
 W, H = 80, 60
 K = torch.tensor([[60.0, 0.0, 39.5], [0.0, 60.0, 29.5], [0.0, 0.0, 1.0]])
@@ -60,35 +62,37 @@ def test_overlap_ratios_use_the_current_pose():
 
 
 def test_database_insertion_every_n():
-    db = KeyframeDatabase(every=3)
+    db = KeyframeStore(KeyframeConfig(every=3))
     inserted = [k for k in range(10) if db.should_insert(k)]
     assert inserted == [0, 3, 6, 9]
     for k in inserted:
         assert db.add(view(k, shifted(0.1 * k))) == []  # nothing dropped: no limit
     assert len(db) == 4 and db.frame_ids() == [0, 3, 6, 9]
     assert db.poses().shape == (4, 4, 4) and float(db.poses()[2, 0, 3]) == pytest.approx(0.6)
-    assert KeyframeDatabase(every=1).should_insert(7)
+    assert KeyframeStore(KeyframeConfig(every=1)).should_insert(7)
     with pytest.raises(ValueError, match="every"):
         KeyframeConfig(every=0)
 
 
 def test_store_is_bounded_by_thinning_and_keeps_first_and_last():
-    db = KeyframeDatabase(every=1, max_stored=5)
+    db = KeyframeStore(KeyframeConfig(every=1, max_stored=5))
     dropped = []
     for k in range(12):
         v = view(k, shifted(0.1 * k))
-        v.rgb = torch.full_like(v.rgb, 0.5)
+        v = dataclasses.replace(v, rgb=torch.full_like(v.rgb, 0.5))
         dropped += db.add(v)
-        assert len(db) <= 5 and db.views[-1].frame_id == k and db.views[0].frame_id == 0
-        assert db.views[-1].rgb.dtype == torch.uint8 and int(db.views[-1].rgb[0, 0, 0]) == 128
+        assert len(db) <= 5 and db.records[-1].frame_id == k and db.records[0].frame_id == 0
+        assert db.records[-1].rgb.dtype == torch.uint8 and int(db.records[-1].rgb[0, 0, 0]) == 128
+        assert v.rgb.dtype == torch.float32  # the view handed in is not changed
     kept = db.frame_ids()
-    assert sorted(kept + [v.frame_id for v in dropped]) == list(range(12))  # every keyframe is kept or handed back
+    assert sorted(kept + [fid for fid, _ in dropped]) == list(range(12))  # every keyframe is kept or handed back
+    assert all(float(pose[0, 3]) == pytest.approx(0.1 * fid) for fid, pose in dropped)  # with its final pose
     assert kept == sorted(kept) and max(b - a for a, b in zip(kept, kept[1:])) <= 4  # still spread over the sequence
 
 
-def overlap_db() -> KeyframeDatabase:
+def overlap_db() -> KeyframeStore:
     """Keyframes whose overlap with an identity-pose current frame is 1, 0.75, 0.5, 0.25, 0."""
-    db = KeyframeDatabase(every=1)
+    db = KeyframeStore(KeyframeConfig(every=1))
     for i, frac in enumerate([0.0, 0.25, 0.5, 0.75, 2.0]):
         db.add(view(i, shifted(frac * FOOTPRINT)))
     return db
@@ -107,7 +111,7 @@ def test_overlap_policy_picks_lowest_overlapping_keyframes():
 
 
 def test_overlap_policy_falls_back_to_latest_when_nothing_overlaps():
-    db = KeyframeDatabase(every=1)
+    db = KeyframeStore(KeyframeConfig(every=1))
     for i in range(4):
         db.add(view(i, shifted(5.0 + i)))
     picked = KeyframePolicy(KeyframeConfig("overlap", window=2)).select(db, view(9, torch.eye(4)), K, torch.Generator().manual_seed(0))
@@ -125,7 +129,7 @@ def test_policy_excludes_current_frame_and_returns_all_when_few():
 
 @pytest.mark.parametrize("seed", range(5))
 def test_random_policy_picks_k_distinct(seed):
-    db = KeyframeDatabase(every=1)
+    db = KeyframeStore(KeyframeConfig(every=1))
     for i in range(12):
         db.add(view(i, shifted(0.01 * i)))
     policy = KeyframePolicy(KeyframeConfig("random", window=4))
@@ -137,7 +141,7 @@ def test_random_policy_picks_k_distinct(seed):
 
 
 def test_random_policy_covers_keyframes():
-    db = KeyframeDatabase(every=1)
+    db = KeyframeStore(KeyframeConfig(every=1))
     for i in range(8):
         db.add(view(i, torch.eye(4)))
     gen = torch.Generator().manual_seed(0)

@@ -50,9 +50,9 @@ def frames(tiny_cube):
 def test_mapper_run_reduces_loss(frames):
     v0, _, K, f0 = frames
     field = make_field(f0, K)
-    mapper = Mapper(field, MappingConfig(rays=512))
+    mapper = Mapper(field, MappingConfig(rays=512), PixelSampler(), RenderConfig(), LossWeights())
     before = fixed_loss(field, v0, K)
-    poses, stats = mapper.run([v0], [True], 40, K, PixelSampler(), RenderConfig(), LossWeights(), torch.Generator().manual_seed(0))
+    poses, stats = mapper.run([v0], [True], 40, K, torch.Generator().manual_seed(0))
     after = fixed_loss(field, v0, K)
     assert after < 0.5 * before, (before, after)
     assert stats["skipped_steps"] == 0 and {"total", "color", "depth", "free_space", "sdf", "offset"} <= set(stats)
@@ -62,10 +62,10 @@ def test_mapper_run_reduces_loss(frames):
 def test_fixed_view_pose_unchanged_and_movable_view_refined(frames):
     v0, v1, K, f0 = frames
     field = make_field(f0, K)
-    mapper = Mapper(field, MappingConfig(rays=512, optimize_poses=True, lr_pose=1e-3))
+    mapper = Mapper(field, MappingConfig(rays=512, optimize_poses=True, lr_pose=1e-3), PixelSampler(), RenderConfig(), LossWeights())
     start1 = se3_exp(torch.tensor([0.01, 0.0, 0.0, 0.0, 0.0, 0.0])) @ v1.pose  # a slightly wrong keyframe pose
     v1_off = View(1, v1.tau, v1.rgb, v1.depth, v1.dynamic, start1)
-    poses, _ = mapper.run([v1_off, v0], [False, True], 10, K, PixelSampler(), RenderConfig(), LossWeights(), torch.Generator().manual_seed(0))
+    poses, _ = mapper.run([v1_off, v0], [False, True], 10, K, torch.Generator().manual_seed(0))
     assert poses.shape == (2, 4, 4)
     assert torch.equal(poses[1], v0.pose)  # the fixed (first) view is exactly where it was
     assert (poses[0] - start1).abs().max() > 1e-4  # the movable one was optimised
@@ -77,7 +77,7 @@ def test_fixed_view_pose_unchanged_and_movable_view_refined(frames):
 def test_poses_not_optimised_by_default(frames):
     v0, v1, K, f0 = frames
     field = make_field(f0, K)
-    poses, _ = Mapper(field, MappingConfig(rays=256)).run([v1, v0], [False, True], 3, K, PixelSampler(), RenderConfig(), LossWeights(), torch.Generator().manual_seed(0))
+    poses, _ = Mapper(field, MappingConfig(rays=256), PixelSampler(), RenderConfig(), LossWeights()).run([v1, v0], [False, True], 3, K, torch.Generator().manual_seed(0))
     torch.testing.assert_close(poses, torch.stack([v1.pose, v0.pose]), atol=1e-6, rtol=0)
 
 
@@ -86,9 +86,8 @@ def test_grid_growth_keeps_adam_state_aligned(frames):
     field = make_field(f0, K, capacity=64, columns=slice(0, 20))  # the left quarter of the image only
     grid = field.grid
     assert grid.capacity == grid.num_corners  # grown exactly to what was needed: the next voxels grow it
-    mapper = Mapper(field, MappingConfig(rays=256))
-    sampler, render, weights = PixelSampler(), RenderConfig(), LossWeights()
-    mapper.run([v0], [True], 3, K, sampler, render, weights, torch.Generator().manual_seed(0))
+    mapper = Mapper(field, MappingConfig(rays=256), PixelSampler(), RenderConfig(), LossWeights())
+    mapper.run([v0], [True], 3, K, torch.Generator().manual_seed(0))
     state = mapper.optimizer.state[grid.embeddings]
     assert state["exp_avg"].shape == grid.embeddings.shape
     old_rows = grid.capacity
@@ -103,7 +102,7 @@ def test_grid_growth_keeps_adam_state_aligned(frames):
         assert torch.equal(state[key][:old_rows], old)
         assert (state[key][old_rows:] == 0).all()
     # and optimisation goes on over the grown table (no shape mismatch inside Adam) ...
-    mapper.run([v0], [True], 2, K, sampler, render, weights, torch.Generator().manual_seed(1))
+    mapper.run([v0], [True], 2, K, torch.Generator().manual_seed(1))
     assert mapper.optimizer.state[grid.embeddings]["exp_avg"].shape == grid.embeddings.shape
     # ... and a gradient on the new rows moves them through the same optimiser
     before = grid.embeddings.detach().clone()
@@ -118,7 +117,7 @@ def test_grid_growth_keeps_adam_state_aligned(frames):
 def test_final_pass_revisits_every_view_in_windows_and_never_moves_poses(frames):
     v0, v1, K, f0 = frames
     field = make_field(f0, K)
-    mapper = Mapper(field, MappingConfig(rays=128, iters=2, final_iters=7, final_window=1))
+    mapper = Mapper(field, MappingConfig(rays=128, iters=2, final_iters=7, final_window=1), PixelSampler(), RenderConfig(), LossWeights())
     mapper.steps = 1000  # as if mapping had run 1000 steps online: 10 % of them is over the cap of 7
     seen: list[int] = []
     run = mapper.run
@@ -129,12 +128,12 @@ def test_final_pass_revisits_every_view_in_windows_and_never_moves_poses(frames)
         return run(views, fixed, iters, *args, **kwargs)
 
     mapper.run = spy
-    terms = final_pass(mapper, [v0, v1], K, PixelSampler(), RenderConfig(), LossWeights(), torch.Generator().manual_seed(0))
+    terms = final_pass(mapper, [v0, v1], K, torch.Generator().manual_seed(0))
     assert len(seen) == 4 and sorted(seen[:2]) == [0, 1] and sorted(seen[2:]) == [0, 1]  # 2+2+2+1 steps
     assert "total" in terms
-    assert final_pass(Mapper(field, MappingConfig(final_iters=0)), [v0], K, PixelSampler(), RenderConfig(), LossWeights()) == {}
+    assert final_pass(Mapper(field, MappingConfig(final_iters=0), PixelSampler(), RenderConfig(), LossWeights()), [v0], K) == {}
     # the budget is final_share of the online steps: 30 steps online -> 3 steps
     seen.clear()
     mapper.steps = 30
-    final_pass(mapper, [v0, v1], K, PixelSampler(), RenderConfig(), LossWeights(), torch.Generator().manual_seed(0))
+    final_pass(mapper, [v0, v1], K, torch.Generator().manual_seed(0))
     assert len(seen) == 2  # rounds of 2 + 1 steps

@@ -9,9 +9,9 @@ import torch
 
 from data_modules.synthetic import SyntheticSequence
 from tivne.geometry import backproject, invert_pose, se3_exp, se3_step
-from tivne.slam.odometry import OdometryConfig, normal_equations, rgbd_odometry
-from tivne.slam.pyramid import build_pyramid, downsample_depth, downsample_K, downsample_mask, image_gradients, vertex_normals
-from tivne.slam.robust import cauchy_weights, huber_weights, robust_scale
+from tivne.slam.tracking.odometry import OdometryConfig, normal_equations, rgbd_odometry
+from tivne.slam.tracking.pyramid import build_pyramid, downsample_depth, downsample_K, downsample_mask, image_gradients, vertex_normals
+from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale
 
 W, H = 160, 120
 
@@ -95,8 +95,8 @@ def test_dynamic_mask_excludes_the_moving_cube(room):
 
 def test_depth_colour_time_offset_is_compensated(room):
     """Depth taken at another pose than colour (a 20 ms offset at 60 °/s), in both frames."""
-    from tivne.slam.odometry import OdometryConfig as Cfg
-    from tivne.slam.odometry import frame_pyramid, track_pyramids
+    from tivne.slam.tracking.odometry import OdometryConfig as Cfg
+    from tivne.slam.tracking.odometry import frame_pyramid, track_pyramids
 
     P, dT = room.camera_pose(0), motion(9, 0.02, 3.0)
     ref_cd, cur_cd = motion(10, 0.004, 1.2), motion(11, 0.004, 1.2)  # T_rgb_depth of each frame

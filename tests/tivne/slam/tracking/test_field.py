@@ -1,4 +1,4 @@
-"""Motion model, map freezing and pose tracking against a fitted map (tivne/slam/tracking.py)."""
+"""Motion model, map freezing and pose tracking against a fitted map (tivne/slam/tracking/field.py)."""
 
 from __future__ import annotations
 
@@ -7,13 +7,13 @@ import math
 import pytest
 import torch
 
-from tivne.config import LossWeights, MappingConfig, RenderConfig, TrackingConfig
+from tivne.config import FieldTrackingConfig, LossWeights, MappingConfig, RenderConfig, TrackingConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.geometry import backproject_depth, invert_pose, se3_exp
 from tivne.render.rays import View
 from tivne.render.samplers import PixelSampler
 from tivne.slam.mapping import Mapper
-from tivne.slam.tracking import frozen, predict_pose, track_frame
+from tivne.slam.tracking.field import frozen, predict_pose, track_frame
 
 
 def pose_error(T: torch.Tensor, ref: torch.Tensor) -> tuple[float, float]:
@@ -53,9 +53,9 @@ def test_predict_pose_constant_velocity():
 
 
 def test_tracking_config_validation():
-    with pytest.raises(ValueError, match="query_time"):
-        TrackingConfig(query_time="now")
-    with pytest.raises(ValueError, match="motion_model"):
+    with pytest.raises(ValueError, match="field_tracking.query_time"):
+        FieldTrackingConfig(query_time="now")
+    with pytest.raises(ValueError, match="tracking.motion_model"):
         TrackingConfig(motion_model="linear")
 
 
@@ -87,13 +87,13 @@ def fitted(tiny_cube):
     field = TimeVaryingField(time=True, voxel_size=0.1, embed_dim=16, capacity=4096, hidden_dim=32)
     field.grid.allocate(backproject_depth(frame.depth, K)[frame.depth > 0], dilation=1)
     view = View(0, 0.0, frame.rgb, frame.depth, frame.mask, torch.eye(4))
-    Mapper(field, MappingConfig(rays=512)).run(
-        [view], [True], 100, K, PixelSampler(), RenderConfig(), LossWeights(), torch.Generator().manual_seed(0)
+    Mapper(field, MappingConfig(rays=512), PixelSampler(), RenderConfig(), LossWeights()).run(
+        [view], [True], 100, K, torch.Generator().manual_seed(0)
     )
     return field, frame, K
 
 
-CFG = TrackingConfig(iters=40, rays=512)
+CFG = FieldTrackingConfig(iters=40, rays=512)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -104,7 +104,7 @@ def test_track_frame_recovers_small_perturbation(fitted, seed):
     pose, stats = track_frame(field, View(0, 0.0, frame.rgb, frame.depth, frame.mask, init), K, RenderConfig(), LossWeights(), CFG, torch.Generator().manual_seed(1))
     t1, r1 = pose_error(pose, torch.eye(4))
     assert t1 < 0.7 * t0 and r1 < r0, (t0, r0, t1, r1)
-    assert math.isfinite(stats["loss"]) and stats["nonfinite"] == 0 and stats["inlier_ratio"] > 0.9
+    assert math.isfinite(stats.loss) and stats.nonfinite == 0 and stats.inlier_ratio > 0.9
     torch.testing.assert_close(pose[:3, :3] @ pose[:3, :3].T, torch.eye(3), atol=1e-5, rtol=0)
 
 
@@ -121,7 +121,7 @@ def test_track_frame_gradients_reach_only_the_pose(fitted):
     flags = [p.requires_grad for p in field.parameters()]
     params = [p.detach().clone() for p in field.parameters()]
     init = se3_exp(twist(3, 0.02, 0.01))
-    pose, _ = track_frame(field, View(0, 0.0, frame.rgb, frame.depth, frame.mask, init), K, RenderConfig(), LossWeights(), TrackingConfig(iters=5, rays=256), torch.Generator().manual_seed(1))
+    pose, _ = track_frame(field, View(0, 0.0, frame.rgb, frame.depth, frame.mask, init), K, RenderConfig(), LossWeights(), FieldTrackingConfig(iters=5, rays=256), torch.Generator().manual_seed(1))
     assert not torch.allclose(pose, init)  # the pose moved: gradients reached it
     assert all(p.grad is None for p in field.parameters())
     assert [p.requires_grad for p in field.parameters()] == flags and all(flags)
@@ -133,6 +133,6 @@ def test_track_frame_off_the_map_keeps_initial_pose(fitted):
     field, frame, K = fitted
     far = torch.eye(4)
     far[:3, 3] = torch.tensor([50.0, 0.0, 0.0])  # nothing allocated there: no ray hits the map
-    pose, stats = track_frame(field, View(0, 0.0, frame.rgb, frame.depth, None, far), K, RenderConfig(), LossWeights(), TrackingConfig(iters=5, rays=64), torch.Generator().manual_seed(0))
+    pose, stats = track_frame(field, View(0, 0.0, frame.rgb, frame.depth, None, far), K, RenderConfig(), LossWeights(), FieldTrackingConfig(iters=5, rays=64), torch.Generator().manual_seed(0))
     torch.testing.assert_close(pose, far)
     assert torch.isfinite(pose).all()

@@ -1,4 +1,4 @@
-"""Camera tracking: optimise only the current pose against the frozen map."""
+"""The paper's field tracker: optimise only the current pose against the frozen map; the motion model."""
 
 from __future__ import annotations
 
@@ -7,13 +7,14 @@ from contextlib import contextmanager
 
 import torch
 
-from tivne.config import LossWeights, RenderConfig, TrackingConfig
+from tivne.config import FieldTrackingConfig, LossWeights, RenderConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.geometry import invert_pose, orthonormalize_pose, se3_exp
 from tivne.render.losses import robust_ray_mask, slam_loss
 from tivne.render.rays import View
 from tivne.render.renderer import render_pixels
 from tivne.render.samplers import PixelPool, draw
+from tivne.slam.tracking.result import FieldTrackStats
 
 
 def predict_pose(previous: list[torch.Tensor], motion_model: str) -> torch.Tensor:
@@ -41,12 +42,12 @@ def track_frame(
     K: torch.Tensor,
     render: RenderConfig,
     weights: LossWeights,
-    cfg: TrackingConfig,
+    cfg: FieldTrackingConfig,
     generator: torch.Generator | None = None,
-) -> tuple[torch.Tensor, dict[str, float]]:
+) -> tuple[torch.Tensor, FieldTrackStats]:
     """Optimise T = T_init · exp(ξ) (a camera-frame delta ξ) with the map frozen.
 
-    ``view.pose`` is the initial pose. Returns the tracked c2w pose and statistics.
+    ``view.pose`` is the initial pose. Returns the tracked c2w pose and its statistics.
     """
     pool = PixelPool.from_masks(view.depth > 0, view.dynamic if cfg.exclude_dynamic else None)
     pixels = [draw(pool.static, cfg.rays, generator)]
@@ -78,4 +79,4 @@ def track_frame(
             opt.step()
             schedule.step()
     final = best_pose if cfg.keep_best or nonfinite else (init @ se3_exp(torch.cat([trans, rot], dim=-1))[0]).detach()
-    return orthonormalize_pose(final), {"loss": best_loss, "last_loss": last_loss, "inlier_ratio": kept, "nonfinite": float(nonfinite)}
+    return orthonormalize_pose(final), FieldTrackStats(best_loss, last_loss, kept, nonfinite)

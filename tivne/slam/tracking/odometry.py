@@ -28,8 +28,8 @@ import torch.nn.functional as F
 from data_modules.sensor import kinect_depth_sigma
 from tivne.config import OdometryConfig
 from tivne.geometry import invert_pose, project, se3_step
-from tivne.slam.pyramid import PyramidLevel, build_pyramid
-from tivne.slam.robust import cauchy_weights, huber_weights, robust_scale, subsample
+from tivne.slam.tracking.pyramid import PyramidLevel, build_pyramid
+from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale, subsample
 
 
 @dataclass(frozen=True)
@@ -335,7 +335,7 @@ def _result(
 def frame_pyramid(
     rgb: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, config: OdometryConfig, mask: torch.Tensor | None = None
 ) -> list[PyramidLevel]:
-    """:func:`tivne.slam.pyramid.build_pyramid` (same arguments) with the levels, depth range and noise of ``config``."""
+    """:func:`tivne.slam.tracking.pyramid.build_pyramid` (same arguments) with the levels, depth range and noise of ``config``."""
     return build_pyramid(rgb, depth, K, config.levels, mask, (config.min_depth, config.max_depth), config.depth_sigma)
 
 

@@ -1,0 +1,121 @@
+"""The tracking front end (tivne/slam/tracking/tracker.py): odometry against a reference, typed
+results, loss detection, the precheck and its counters."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+import torch
+
+from data_modules.frame import Frame
+from data_modules.synthetic import SyntheticSequence
+from tivne.config import FieldTrackingConfig, LossWeights, OdometryConfig, RenderConfig, TrackingConfig
+from tivne.field.networks import TimeVaryingField
+from tivne.geometry import invert_pose, se3_exp
+from tivne.render.rays import View
+from tivne.slam.tracking import TrackStatus
+from tivne.slam.tracking.tracker import Tracker, pose_jump
+
+W, H = 160, 120
+
+
+class Poses:
+    """A PoseLookup over a plain list (index = frame id)."""
+
+    def __init__(self, poses: list[torch.Tensor]) -> None:
+        self.list = poses
+
+    def pose(self, frame_id: int) -> torch.Tensor:
+        return self.list[frame_id].double()
+
+    def recent(self, n: int) -> list[torch.Tensor]:
+        return [p.double() for p in self.list[-n:]]
+
+
+@pytest.fixture(scope="module")
+def room() -> SyntheticSequence:
+    return SyntheticSequence("static_room", num_frames=8, width=W, height=H, depth_noise=False, rgb_noise=0.0, cache_dir=None)
+
+
+def frame_at(seq: SyntheticSequence, c2w: torch.Tensor, index: int) -> Frame:
+    rgb, depth, _ = seq.render_at(c2w, 0.0)
+    return Frame(index=index, timestamp=index / 30, rgb=rgb, depth=depth, mask=None, gt_pose=None)
+
+
+def view_of(frame: Frame, pose: torch.Tensor) -> View:
+    return View(frame.index, 0.0, frame.rgb, frame.depth, None, pose)
+
+
+def relative(seq: SyntheticSequence, i: int) -> torch.Tensor:
+    """GT pose of frame i in the first camera's frame (the SLAM world frame), float32."""
+    return (invert_pose(seq.camera_pose(0)) @ seq.camera_pose(i)).float()
+
+
+def make_tracker(method: str = "odometry", field: dict | None = None, **kw) -> Tracker:
+    return Tracker(TrackingConfig(method=method, **kw), FieldTrackingConfig(**(field or {})), OdometryConfig(), RenderConfig(), LossWeights())
+
+
+def track(tracker: Tracker, frame: Frame, poses: list[torch.Tensor], K: torch.Tensor, field=None, generator=None):
+    return tracker.track(frame.index, frame, 0.0, None, field or TimeVaryingField(), Poses(poses), K, 0.0, generator)
+
+
+def test_odometry_tracks_against_the_reference_and_switches_it(room):
+    tracker = make_tracker(reference="adaptive")
+    K = room.intrinsics.K()
+    first = frame_at(room, room.camera_pose(0), 0)
+    origin = track(tracker, first, [], K)
+    assert origin.status is TrackStatus.TRACKED and torch.equal(origin.pose, torch.eye(4))  # the world frame
+    assert tracker.update_reference(view_of(first, origin.pose), K, origin, is_keyframe=True) and tracker.reference.frame_id == 0
+    poses = [torch.eye(4)]
+    for i in range(1, 4):
+        result = track(tracker, frame_at(room, room.camera_pose(i), i), poses, K)
+        t_err, r_err = pose_jump(result.pose, relative(room, i))
+        assert result.status is TrackStatus.TRACKED and t_err < 2e-3 and r_err < 0.1, (i, t_err, r_err, result.describe())
+        assert result.odometry.ok and result.odometry.inlier_ratio > 0.9
+        assert result.scalars()["odo_ok"] == 1.0  # scalars only for the logs
+        poses.append(result.pose)
+    assert tracker.counts.frames == 3 and tracker.counts.lost == 0
+    # adaptive: a well-overlapping frame does not become the reference; a poor overlap does
+    good = dataclasses.replace(result, odometry=dataclasses.replace(result.odometry, overlap=0.9, inlier_ratio=0.9))
+    assert not tracker.update_reference(view_of(first, poses[-1]), K, good, False)
+    poor = dataclasses.replace(result, odometry=dataclasses.replace(result.odometry, overlap=0.5))
+    assert tracker.update_reference(dataclasses.replace(view_of(first, poses[-1]), frame_id=3), K, poor, False)
+    assert tracker.reference.frame_id == 3 and not hasattr(tracker.reference, "pose")  # an id: its pose is the trajectory's
+
+
+def test_a_frame_that_jumps_is_lost_and_keeps_the_prediction_not_identity(room, capsys):
+    tracker = make_tracker()
+    K = room.intrinsics.K()
+    first = frame_at(room, room.camera_pose(0), 0)
+    tracker.update_reference(view_of(first, torch.eye(4)), K, track(tracker, first, [], K), is_keyframe=True)
+    poses = [torch.eye(4), relative(room, 1)]
+    # the camera turned 120 degrees between two frames: nothing overlaps the reference
+    turned = room.camera_pose(1) @ se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.0, math.radians(120.0), 0.0], dtype=torch.float64))
+    result = track(tracker, frame_at(room, turned, 2), poses, K)
+    assert result.status is TrackStatus.LOST and result.lost and result.jump_deg > 30
+    predicted = poses[-1] @ invert_pose(poses[-2]) @ poses[-1]
+    assert torch.allclose(result.pose, predicted, atol=1e-5)  # the motion model's guess, flagged
+    assert not torch.allclose(result.pose, torch.eye(4), atol=1e-3)
+    assert tracker.counts.lost == 1 and "warning: frame 2" in capsys.readouterr().err  # the tracker's own warning line
+
+
+def test_field_tracker_alone_reports_loss_by_inlier_ratio(room):
+    tracker = make_tracker("field", field=dict(iters=2, rays=64))
+    f = frame_at(room, room.camera_pose(1), 1)
+    field = TimeVaryingField(voxel_size=0.2, capacity=512, hidden_dim=16)  # an empty map: no ray renders
+    result = track(tracker, f, [torch.eye(4)], room.intrinsics.K(), field, torch.Generator().manual_seed(0))
+    assert result.lost and result.field.inlier_ratio == 0.0 and result.odometry is None
+    assert torch.equal(result.pose, torch.eye(4))  # the prediction (zero motion from one pose), flagged lost
+
+
+def test_a_frame_without_static_depth_is_not_tracked(room, capsys):
+    tracker = make_tracker(min_static_pixels=100)
+    f = frame_at(room, room.camera_pose(1), 1)
+    blank = dataclasses.replace(f, depth=torch.zeros_like(f.depth))
+    last = relative(room, 0)
+    result = track(tracker, blank, [last], room.intrinsics.K())
+    assert result.status is TrackStatus.NO_DEPTH and result.lost and torch.equal(result.pose, last)
+    assert tracker.counts.without_tracking == 1 and tracker.counts.frames == 0
+    assert "only 0 static pixels with depth" in capsys.readouterr().err

@@ -1,0 +1,179 @@
+"""The SLAM loop as a plain object: ``step(frame) -> FrameReport`` per frame, ``finish()`` for the
+final pass, ``state_dict()`` / ``load_state_dict()`` for checkpoints. No Lightning, no Hydra, no files:
+the LightningModule (:mod:`tivne.slam.system`) adapts it to a Trainer, :mod:`tivne.slam.results`
+writes what it holds, and a plain ``for frame in frames: loop.step(frame)`` runs it too.
+
+One frame: masks -> track -> (mask after tracking, revise keyframe masks) -> keyframe -> map ->
+allocate -> record. Each component owns its settings and its state:
+
+    clock       Clock: the one conversion of timestamps to field time τ (set by the first frame)
+    masks       MaskProvider: the motion mask (before or after tracking)
+    tracker     Tracker: the camera pose (a TrackResult), its reference, counters and warnings
+    keyframes   KeyframeStore: keyframe records and the one copy of their (refined) poses
+    mapper      Mapper: the map optimiser, rounds over the current frame + the policy's window
+    allocator   VoxelAllocator: where the map grows
+    trajectory  Trajectory: every frame's pose, relative to its keyframe (PoseBook reads both)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any
+
+import torch
+
+from data_modules.frame import Frame, Intrinsics
+from tivne.field.clock import Clock
+from tivne.field.networks import TimeVaryingField
+from tivne.masks.base import MaskContext, MaskProvider, NoMasks
+from tivne.render.rays import View
+from tivne.slam.allocation import VoxelAllocator
+from tivne.slam.keyframes import KeyframePolicy, KeyframeStore, view_from_state, view_state
+from tivne.slam.mapping import Mapper, final_pass
+from tivne.slam.state import FrameReport, Timers
+from tivne.slam.tracking import Tracker
+from tivne.slam.tracking.field import frozen
+from tivne.slam.trajectory import PoseBook, Trajectory
+
+
+class SlamLoop:
+    """Online dynamic RGB-D SLAM over frames in time order (see the module docstring)."""
+
+    def __init__(
+        self,
+        field: TimeVaryingField,
+        intrinsics: Intrinsics,
+        tracker: Tracker,
+        mapper: Mapper,
+        keyframes: KeyframeStore,
+        policy: KeyframePolicy,
+        allocator: VoxelAllocator,
+        masks: MaskProvider | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.field, self.intrinsics = field, intrinsics
+        self.tracker, self.mapper, self.keyframes, self.policy = tracker, mapper, keyframes, policy
+        self.allocator = allocator
+        self.masks = masks or NoMasks()
+        self.trajectory = Trajectory()
+        self.poses = PoseBook(self.trajectory, self.keyframes.pose_map)
+        self.clock: Clock | None = None
+        self.last_mapped_tau = 0.0
+        self.last_view: View | None = None  # the latest tracked frame, when it is no keyframe (the final pass maps it too)
+        self.timers = Timers()
+        self.generator = torch.Generator().manual_seed(seed)
+        self.final_pass_done = False
+        self.between_frames = True  # the state is whole (a checkpoint of it can be resumed)
+
+    @property
+    def device(self) -> torch.device:
+        return self.field.grid.embeddings.device
+
+    @property
+    def K(self) -> torch.Tensor:
+        return self.intrinsics.K(device=self.device)
+
+    def __len__(self) -> int:
+        return len(self.trajectory)
+
+    # ---- one frame -----------------------------------------------------------------------------
+    def step(self, frame: Frame) -> FrameReport:
+        """Process the next frame of the stream."""
+        self.between_frames = False
+        start = time.perf_counter()
+        k = len(self.trajectory)
+        if self.clock is None:
+            self.clock = Clock(float(frame.timestamp), self.field.time_scale)
+        tau = self.clock.tau(frame.timestamp)
+        # Post-tracking providers lend tracking a prediction (their previous mask) meanwhile.
+        mask = self.masks.predict(frame) if self.masks.needs_tracked_pose else self.masks(frame, None)
+        result = self.tracker.track(k, frame, tau, mask, self.field, self.poses, self.K, self.last_mapped_tau, self.generator)
+        view = View(k, tau, frame.rgb, frame.depth, mask, result.pose)
+        keyframe = new_reference = False
+        mapping = None
+        if not result.lost:  # a frame whose pose is not known is never mapped
+            view, keyframe, new_reference, mapping = self._integrate(k, view, frame, result)
+        latest = self.keyframes.frame_ids()[-1]
+        self.trajectory.append(frame.timestamp, view.pose, latest, self.keyframes.pose(latest), frame.gt_pose)
+        if not result.lost:
+            self.last_view = None if keyframe else view
+        elapsed = time.perf_counter() - start
+        self.timers.per_frame.append(elapsed)
+        self.between_frames = True
+        return FrameReport(k, float(frame.timestamp), tau, result, view, keyframe, new_reference, mapping, elapsed, self.field.grid.num_voxels)
+
+    def _integrate(self, k: int, view: View, frame: Frame, result) -> tuple[View, bool, bool, Any]:
+        """Everything after a successful track: the mask, keyframes, mapping, voxels, the odometry reference."""
+        K = self.K
+        if self.masks.needs_tracked_pose:
+            with frozen(self.field), torch.no_grad():
+                context = MaskContext(self.field, view.pose, K, view.tau, self.mapper.render, k, self.last_mapped_tau)
+                view = dataclasses.replace(view, dynamic=self.masks(frame, context))
+        self.keyframes.set_masks(self.masks.revise(self.keyframes.views(), view, K))  # what this frame shows about earlier keyframes
+        if k == 0:  # the first frame is mapped before anything else: its voxels first
+            self.allocator.allocate(self.field.grid, view, K)
+        keyframe = self.keyframes.should_insert(k)
+        if keyframe:
+            for frame_id, pose in self.keyframes.add(view):
+                self.trajectory.freeze(frame_id, pose)
+        mapping = None
+        if k == 0 or k % self.mapper.cfg.every == 0:
+            mapping = self.mapper.map_frame(view, self.keyframes, self.policy, K, self.generator, first=k == 0)
+            self.keyframes.update_poses(mapping.poses)
+            if k in mapping.poses:
+                view = dataclasses.replace(view, pose=mapping.poses[k])
+            self.last_mapped_tau = view.tau
+        if k > 0:
+            self.allocator.allocate(self.field.grid, view, K)
+        new_reference = self.tracker.update_reference(view, K, result, keyframe)
+        return view, keyframe, new_reference, mapping
+
+    # ---- after the last frame -------------------------------------------------------------------
+    def finish(self) -> None:
+        """The final mapping pass over every keyframe and the last tracked frame (once)."""
+        if self.final_pass_done or not len(self.trajectory):
+            return
+        views = self.keyframes.views() + ([self.last_view] if self.last_view is not None else [])
+        start = time.perf_counter()
+        self.between_frames = False
+        final_pass(self.mapper, views, self.K, self.generator)
+        self.timers.refine_s = time.perf_counter() - start
+        self.final_pass_done = self.between_frames = True
+
+    # ---- results --------------------------------------------------------------------------------
+    def ate(self):
+        """SE(3)-aligned ATE of the frames with GT so far (None with fewer than 3)."""
+        return self.trajectory.ate(self.keyframes.pose_map())
+
+    # ---- checkpoints ----------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        """Everything the next frame depends on but the field (saved beside it) and the global RNGs."""
+        return {
+            "position": len(self.trajectory),
+            "final_pass_done": bool(self.final_pass_done),
+            "clock": None if self.clock is None else self.clock.state_dict(),
+            "last_mapped_tau": float(self.last_mapped_tau),
+            "mapper": self.mapper.state_dict(),
+            "keyframes": self.keyframes.state_dict(),
+            "trajectory": self.trajectory.state_dict(),
+            "tracker": self.tracker.state_dict(),
+            "masks": self.masks.state_dict(),
+            "last_view": None if self.last_view is None else view_state(self.last_view),
+            "timers": dataclasses.asdict(self.timers),
+            "generator": self.generator.get_state(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Continue from :meth:`state_dict` (tensors on this loop's device; the field loaded first)."""
+        self.mapper.load_state_dict(state["mapper"])  # after the field: E has its saved rows
+        self.keyframes.load_state_dict(state["keyframes"])
+        self.trajectory.load_state_dict(state["trajectory"])
+        self.tracker.load_state_dict(state["tracker"])
+        self.masks.load_state_dict(state["masks"])
+        self.clock = None if state["clock"] is None else Clock.from_state(state["clock"])
+        self.last_mapped_tau = float(state["last_mapped_tau"])
+        self.last_view = None if state["last_view"] is None else view_from_state(state["last_view"])
+        self.final_pass_done = bool(state["final_pass_done"])
+        self.timers = Timers(**state["timers"])
+        self.generator.set_state(state["generator"].cpu())

@@ -1,0 +1,208 @@
+"""The library entry of a training run (what ``python -m tivne.train``, the benchmarks and the tests
+call): the checked settings of a composed config, the loop built from them, and :func:`run`, which
+drives it over the configured sequence with a Lightning Trainer and writes the run directory.
+
+The run directory: one that already holds results is refused unless ``resume=true`` (continue an
+interrupted run from ``checkpoints/slam.pt``: same overrides, same folder; the frames it processed
+are skipped) or ``overwrite=true`` (its results are cleared first); see
+:func:`tivne.slam.outputs.check_run_dir`.
+"""
+
+from __future__ import annotations
+
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+from hydra.utils import instantiate
+from lightning.pytorch.loggers import TensorBoardLogger
+from omegaconf import DictConfig, OmegaConf
+
+from data_modules.frame import Intrinsics
+from data_modules.sequence import SequenceDataModule
+from tivne.config import (
+    AllocationConfig,
+    FieldConfig,
+    FieldTrackingConfig,
+    KeyframeConfig,
+    LossWeights,
+    MappingConfig,
+    MeshConfig,
+    ObjectiveConfig,
+    OdometryConfig,
+    OutputConfig,
+    RenderConfig,
+    RunDirConfig,
+    RuntimeConfig,
+    SamplerConfig,
+    TrackingConfig,
+    TrainerConfig,
+)
+from tivne.evaluation import evaluate_run
+from tivne.field.networks import TimeVaryingField
+from tivne.masks.base import MaskProvider
+from tivne.meshing import select_mesh_times
+from tivne.render.samplers import PixelSampler
+from tivne.slam.allocation import VoxelAllocator
+from tivne.slam.checkpoint import load_resume_state, set_global_rng_state
+from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
+from tivne.slam.loop import SlamLoop
+from tivne.slam.mapping import Mapper
+from tivne.slam.outputs import RunDir, check_run_dir, tensorboard_hparams
+from tivne.slam.results import RunWriter
+from tivne.slam.system import TivNeSLAM, restore
+from tivne.slam.tracking import Tracker
+from tivne.utils import RunFailed, RunInterrupted, configure_runtime, interrupt_signals, require_device
+
+
+def plain(node: Any) -> dict[str, Any]:
+    return OmegaConf.to_container(node, resolve=True)  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """Every checked section of a training run's config."""
+
+    runtime: RuntimeConfig
+    field: FieldConfig
+    render: RenderConfig
+    loss: LossWeights
+    tracking: TrackingConfig
+    field_tracking: FieldTrackingConfig
+    odometry: OdometryConfig
+    mapping: MappingConfig
+    keyframe: KeyframeConfig
+    sampler: SamplerConfig
+    mesh: MeshConfig
+    output: OutputConfig
+    allocation: AllocationConfig
+    trainer: TrainerConfig
+    objective: ObjectiveConfig
+
+    @classmethod
+    def from_config(cls, cfg: DictConfig) -> "TrainSettings":
+        """Check every section (raises :class:`tivne.config.ConfigError` naming the bad key)."""
+        sections = typing.get_type_hints(cls)
+        return cls(**{name: kind.from_mapping(plain(cfg[name])) for name, kind in sections.items()})
+
+
+def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvider | None = None, seed: int = 0) -> SlamLoop:
+    """The SLAM loop with every component built from its checked section."""
+    s = settings
+    field = TimeVaryingField(s.field)
+    return SlamLoop(
+        field=field,
+        intrinsics=intrinsics,
+        tracker=Tracker(s.tracking, s.field_tracking, s.odometry, s.render, s.loss),
+        mapper=Mapper(field, s.mapping, PixelSampler(s.sampler), s.render, s.loss),
+        keyframes=KeyframeStore(s.keyframe),
+        policy=KeyframePolicy(s.keyframe),
+        allocator=VoxelAllocator(s.allocation),
+        masks=masks,
+        seed=seed,
+    )
+
+
+def build_system(
+    cfg: DictConfig, intrinsics: Intrinsics, run_dir: str | Path, settings: TrainSettings | None = None, masks: MaskProvider | None = None
+) -> TivNeSLAM:
+    """The LightningModule around a loop composed from ``cfg``; ``masks`` (a provider object)
+    replaces ``cfg.masks.provider``."""
+    s = settings or TrainSettings.from_config(cfg)
+    provider = masks if masks is not None else instantiate(cfg.masks.provider)
+    loop = build_loop(s, intrinsics, provider, int(cfg.seed))
+    writer = RunWriter(run_dir, s.output, s.mesh, run_config(cfg))
+    return TivNeSLAM(loop, writer, s.output.image_every)
+
+
+def run_config(cfg: DictConfig) -> dict[str, Any]:
+    """The composed config as plain values, without Hydra's own node: what a resumed run must repeat."""
+    values = plain(cfg)
+    values.pop("hydra", None)
+    return values
+
+
+def run_dir_options(cfg: DictConfig) -> RunDirConfig:
+    """The checked top-level ``resume`` / ``overwrite`` keys."""
+    return RunDirConfig.from_mapping({key: cfg.get(key, False) for key in ("resume", "overwrite")})
+
+
+def prepare_run_dir(cfg: DictConfig, options: RunDirConfig, run_dir: str | Path, timestamps) -> dict[str, Any] | None:
+    """Once the run is sure to start: clear the folder for overwrite, or for resume return the
+    checkpoint to continue from (checked against this config and the sequence's ``timestamps``)."""
+    run = RunDir(run_dir)
+    if options.resume:
+        return load_resume_state(run.checkpoint, run_config(cfg), timestamps)
+    if options.overwrite:
+        run.clear_results()
+    return None
+
+
+def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None) -> dict[str, Any]:
+    """Run SLAM over the configured sequence and return metrics.json's content.
+
+    ``masks``: a provider object to use instead of ``cfg.masks.provider`` (e.g. a benchmark's
+    :class:`tivne.masks.base.RecordingMasks` around the configured one).
+    """
+    settings = TrainSettings.from_config(cfg)  # before any data is read
+    options = run_dir_options(cfg)
+    device = require_device(settings.trainer.accelerator)
+    check_run_dir(RunDir(run_dir), options.resume, options.overwrite)  # results there are refused, nothing is changed yet
+    runtime = configure_runtime(settings.runtime.threads, settings.runtime.tune_allocator)
+    L.seed_everything(int(cfg.seed), workers=True, verbose=False)
+    dataset = instantiate(cfg.dataset)
+    datamodule = SequenceDataModule(dataset, **plain(cfg.data))
+    select_mesh_times(datamodule.view.timestamps, list(settings.mesh.times) or None)  # refuse bad times before the run
+    resume = prepare_run_dir(cfg, options, run_dir, datamodule.view.timestamps)
+    system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks)
+    if resume is not None:
+        datamodule.start = system.resume_from(resume)
+    logger = TensorBoardLogger(save_dir=str(run_dir), name="", version=RunDir.TENSORBOARD, default_hp_metric=False)
+    trainer = L.Trainer(
+        max_epochs=1,
+        accelerator=settings.trainer.accelerator,
+        devices=settings.trainer.devices,
+        logger=logger,
+        enable_checkpointing=False,
+        enable_model_summary=False,
+        num_sanity_val_steps=0,
+        inference_mode=False,
+        log_every_n_steps=1,
+        enable_progress_bar=settings.trainer.progress_bar,
+        default_root_dir=str(run_dir),
+    )
+    try:
+        with interrupt_signals():
+            if datamodule.start < len(datamodule.view):
+                trainer.fit(system, datamodule=datamodule)
+            else:  # every frame was processed before the crash: the final pass and the results are left
+                system.to(device)
+                set_global_rng_state(restore(system.loop, system.resume_payload))
+                system.writer.finish(system.loop, logger.experiment)
+            extra = {"threads": runtime["threads"]}
+            if settings.output.evaluate:
+                extra |= evaluate_run(Path(run_dir), datamodule.view, settings.mesh, render=settings.render)
+            metrics = RunDir(run_dir).merge_metrics(extra)
+    except RunInterrupted as exc:
+        if not system.writer.last_metrics.get("complete"):  # a second signal now is the default action: exit at once
+            system.writer.save_partial(system.loop, f"interrupted by {exc} after {len(system.loop)} frames")
+        raise
+    tensorboard_hparams(logger, plain(cfg), metrics)
+    check_tracked(run_dir, metrics)
+    return metrics
+
+
+def check_tracked(run_dir: str | Path, metrics: dict[str, Any]) -> None:
+    """Refuse a run where most frames have no tracked pose (their poses are guesses; a trajectory of
+    them must not pass for a result): metrics.json gets the reason as ``error``, then RunFailed."""
+    frames = int(metrics.get("frames") or 0)
+    untracked = int(metrics.get("tracking_lost") or 0) + int(metrics.get("frames_without_tracking") or 0)
+    if frames > 1 and untracked > (frames - 1) / 2:
+        reason = (
+            f"{untracked} of {frames - 1} frames could not be tracked ({metrics.get('frames_without_tracking')} without usable "
+            f"static depth, {metrics.get('tracking_lost')} lost); see the warnings above and metrics.json"
+        )
+        RunDir(run_dir).merge_metrics({"error": reason})
+        raise RunFailed(reason)
