@@ -24,8 +24,6 @@ import argparse
 import dataclasses
 import math
 import sys
-import tempfile
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -37,11 +35,14 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from data_modules.sequence import SequenceView  # noqa: E402
+from tivne.cli import register_defaults  # noqa: E402
 from tivne.geometry import invert_pose  # noqa: E402
 from tivne.render.rays import View  # noqa: E402
 from tivne.render.renderer import render_image  # noqa: E402
-from tivne.slam.run import TrainSettings, build_system  # noqa: E402
-from tivne.slam.tracking import frozen, predict_pose  # noqa: E402
+from tivne.slam.run import TrainSettings, build_loop  # noqa: E402
+from tivne.slam.tracking.field import frozen, predict_pose  # noqa: E402
+
+register_defaults()  # the config nodes conf/*.yaml compose onto
 
 
 def pose_error(T: torch.Tensor, ref: torch.Tensor) -> tuple[float, float]:
@@ -51,47 +52,59 @@ def pose_error(T: torch.Tensor, ref: torch.Tensor) -> tuple[float, float]:
     return math.degrees(float(torch.arccos(cos))), 100 * float(D[:3, 3].norm())
 
 
-def map_depth_error(system, view: View) -> float:
+def map_depth_error(loop, view: View) -> float:
     """Median |rendered - observed| depth (cm) at ``view.pose`` over every 4th pixel with depth."""
-    with frozen(system.field):
-        _, depth = render_image(system.field, view, system.K, system.render_cfg, stride=4)
+    with frozen(loop.field):
+        _, depth = render_image(loop.field, view, loop.K, loop.mapper.render, stride=4)
     obs = view.depth[::4, ::4]
     ok = (obs > 0) & (depth > 0)
     return 100 * float((depth - obs).abs()[ok].median()) if ok.any() else float("nan")
 
 
-class Probe:
-    """Replaces the system's tracking step: tracks, records, and (oracle mode) returns the GT pose."""
+class GTPoses:
+    """A PoseLookup over ground-truth poses (oracle mode: the motion model starts from GT)."""
 
-    def __init__(self, system, gt: list[torch.Tensor], oracle: bool, iters: list[int]) -> None:
-        self.system, self.gt, self.oracle, self.iters = system, gt, oracle, iters
-        self.tracked_track = system._track
+    def __init__(self, poses: list[torch.Tensor]) -> None:
+        self.poses = poses
+
+    def pose(self, frame_id: int) -> torch.Tensor:
+        return self.poses[frame_id]
+
+    def recent(self, n: int) -> list[torch.Tensor]:
+        return self.poses[-n:]
+
+
+class Probe:
+    """Wraps the loop's tracker: tracks, records, and (oracle mode) returns the GT pose."""
+
+    def __init__(self, loop, gt: list[torch.Tensor], oracle: bool, iters: list[int]) -> None:
+        self.loop, self.gt, self.oracle, self.iters = loop, gt, oracle, iters
+        self.track = loop.tracker.track
         self.rows: list[dict[str, float]] = []
 
-    def __call__(self, k: int, tau: float, frame, mask):
-        s = self.system
-        if k == 0:
-            return torch.eye(4, device=s.device), {}
-        gt_k = self.gt[k].to(s.device)
-        prior = [p.to(s.device).float() for p in self.gt[max(0, k - 2) : k]] if self.oracle else s.tracked
-        init = predict_pose(prior, s.tracking_cfg.motion_model)
-        row = {"frame": k, "step_deg": pose_error(self.gt[k], self.gt[k - 1])[0], "step_cm": pose_error(self.gt[k], self.gt[k - 1])[1]}
+    def __call__(self, index, frame, tau, mask, field, poses, K, last_mapped_tau, generator=None):
+        tracker = self.loop.tracker
+        if index == 0:
+            return self.track(index, frame, tau, mask, field, poses, K, last_mapped_tau, generator)
+        gt_k = self.gt[index].to(frame.depth.device)
+        lookup = GTPoses([p.to(frame.depth.device) for p in self.gt[:index]]) if self.oracle else poses
+        init = predict_pose([p.float() for p in lookup.recent(2)], tracker.cfg.motion_model)
+        row = {"frame": index, "step_deg": pose_error(self.gt[index], self.gt[index - 1])[0], "step_cm": pose_error(self.gt[index], self.gt[index - 1])[1]}
         row["init_deg"], row["init_cm"] = pose_error(init, gt_k)
-        row["map_cm"] = map_depth_error(s, View(k, s.last_mapped_tau, frame.rgb, frame.depth, mask, gt_k.float()))
-        saved, cfg = s.tracked, s.tracking_cfg
-        s.tracked = prior
+        row["map_cm"] = map_depth_error(self.loop, View(index, last_mapped_tau, frame.rgb, frame.depth, mask, gt_k.float()))
+        result = self.track(index, frame, tau, mask, field, lookup, K, last_mapped_tau, generator)
+        cfg = tracker.field_cfg
         try:
-            pose, stats = self.tracked_track(k, tau, frame, mask)
             for n in self.iters:
-                s.tracking_cfg = dataclasses.replace(s.tracking_cfg, iters=n)
-                p_n, _ = self.tracked_track(k, tau, frame, mask)
-                row[f"deg@{n}"], row[f"cm@{n}"] = pose_error(p_n, gt_k)
+                tracker.field_cfg = dataclasses.replace(cfg, iters=n)
+                r_n = self.track(index, frame, tau, mask, field, lookup, K, last_mapped_tau, generator)
+                row[f"deg@{n}"], row[f"cm@{n}"] = pose_error(r_n.pose, gt_k)
         finally:
-            s.tracked, s.tracking_cfg = saved, cfg
-        row["deg"], row["cm"] = pose_error(pose, gt_k)
-        row["inliers"] = float(stats.get("track/inlier_ratio", float("nan")))
+            tracker.field_cfg = cfg
+        row["deg"], row["cm"] = pose_error(result.pose, gt_k)
+        row["inliers"] = result.field.inlier_ratio if result.field is not None else float("nan")
         self.rows.append(row)
-        return (gt_k.float() if self.oracle else pose), stats
+        return dataclasses.replace(result, pose=gt_k.float()) if self.oracle else result
 
 
 def main() -> None:
@@ -109,13 +122,11 @@ def main() -> None:
         raise SystemExit("error: every frame needs a ground-truth pose")
     g0 = frames[0].gt_pose.double()
     gt = [invert_pose(g0) @ f.gt_pose.double() for f in frames]  # in the first camera's frame
-    system = build_system(cfg, view.intrinsics, tempfile.mkdtemp(prefix="tivne-diag-"), settings)
-    probe = Probe(system, gt, args.mode == "oracle", [int(x) for x in args.iters.split(",") if x])
-    system._track = probe
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # self.log without a Trainer
-        for k, frame in enumerate(frames):
-            system.training_step(frame, k)
+    loop = build_loop(settings, view.intrinsics, instantiate(cfg.masks.provider), int(cfg.seed))
+    probe = Probe(loop, gt, args.mode == "oracle", [int(x) for x in args.iters.split(",") if x])
+    loop.tracker.track = probe
+    for frame in frames:
+        loop.step(frame)
     report(probe.rows, args.every)
 
 

@@ -95,7 +95,10 @@ def compose(name: str, args: argparse.Namespace):
 def run_slam(name: str, args: argparse.Namespace) -> dict[str, float]:
     from hydra.utils import instantiate
 
+    from tivne.cli import register_defaults
     from tivne.slam.run import run
+
+    register_defaults()  # the config nodes conf/*.yaml compose onto
 
     cfg = compose(name, args)
     rec = RecordingMasks(instantiate(cfg.masks.provider))

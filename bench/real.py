@@ -92,7 +92,9 @@ def run_tivne(root: str, camera: str, frames: int, overrides: list[str]) -> dict
     from hydra import compose, initialize_config_dir
 
     from data_modules.tables import read_tum_trajectory
+    from tivne.cli import register_defaults
     from tivne.slam.run import run
+    register_defaults()  # the config nodes conf/*.yaml compose onto
 
     args = ["dataset=tum", f"dataset.root={root}", f"dataset.camera={camera}", "trainer.progress_bar=false", "output.image_every=0"]
     if frames:

@@ -23,7 +23,10 @@ from hydra import compose, initialize_config_dir
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from tivne.cli import register_defaults  # noqa: E402
 from tivne.slam.run import run  # noqa: E402
+
+register_defaults()  # the config nodes conf/*.yaml compose onto
 
 FIGURES = [
     ("frames", "frames", "{:.0f}"),

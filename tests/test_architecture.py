@@ -25,6 +25,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("tivne.masks",),
     ("tivne.slam",),
     ("tivne.evaluation",),
+    ("tivne.slam.run",),  # the library entry of a run: the loop, driven and evaluated
     ("tivne.reporting",),
     ("tivne.cli",),
 )
@@ -32,6 +33,21 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 CLIS = {"tivne.train", "tivne.mesh", "tivne.evaluate", "tivne.make_masks", "tivne.collect", "tivne.report", "data_modules.inspect"}
 # The pure metrics may use nothing of tivne but geometry.
 METRICS_MAY_IMPORT = ("tivne.geometry", "tivne.metrics")
+# Inside tivne.slam, bottom-up: what a frame's walk hands from stage to stage. The loop is plain
+# (no Lightning, no Hydra); the LightningModule only adapts it; run is the library entry on top.
+SLAM_LAYERS: tuple[tuple[str, ...], ...] = (
+    ("tivne.slam", "tivne.slam.outputs"),
+    ("tivne.slam.tracking",),
+    ("tivne.slam.keyframes", "tivne.slam.trajectory", "tivne.slam.allocation"),
+    ("tivne.slam.mapping",),
+    ("tivne.slam.state", "tivne.slam.checkpoint"),
+    ("tivne.slam.loop",),
+    ("tivne.slam.results",),
+    ("tivne.slam.system",),
+    ("tivne.slam.run",),
+)
+FRAMEWORKS = ("lightning", "hydra", "omegaconf")
+MAX_SYSTEM_LINES = 150
 
 
 def module_name(path: Path) -> str:
@@ -131,3 +147,45 @@ def test_module_and_function_size(module):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES
     ]
     assert long == [], f"{path.relative_to(REPO)}: {long}"
+
+
+def slam_layer_of(module: str) -> int:
+    best, rank = -1, -1
+    for i, entry in enumerate(SLAM_LAYERS):
+        for prefix in entry:
+            if (module == prefix or module.startswith(prefix + ".")) and len(prefix) > best:
+                best, rank = len(prefix), i
+    return rank
+
+
+def test_slam_modules_import_only_lower_slam_stages():
+    slam = [m for m in GRAPH if m.startswith("tivne.slam.")]
+    assert [m for m in slam if slam_layer_of(m) < 0] == []
+    bad = [f"{m} -> {d}" for m in slam for d in GRAPH[m] if d.startswith("tivne.slam.") and slam_layer_of(d) > slam_layer_of(m)]
+    assert bad == []
+
+
+def framework_imports(path: Path) -> set[str]:
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+        found |= {n.split(".")[0] for n in names if n.split(".")[0] in FRAMEWORKS}
+    return found
+
+
+def test_the_loop_and_everything_below_it_are_plain_python():
+    """No Lightning or Hydra under the loop: a Fabric or plain-Python runner can drive it."""
+    plain = [m for m in GRAPH if m.startswith("tivne.slam") and slam_layer_of(m) <= slam_layer_of("tivne.slam.results")]
+    assert {m: sorted(framework_imports(sources()[m])) for m in plain if framework_imports(sources()[m])} == {}
+    assert sorted(framework_imports(sources()["tivne.slam.system"])) == ["lightning"]
+
+
+def test_the_lightning_module_is_thin():
+    lines = len(sources()["tivne.slam.system"].read_text().splitlines())
+    assert lines <= MAX_SYSTEM_LINES, f"tivne/slam/system.py has {lines} lines"
+
+
+def test_benchmarks_import_no_command_line_module():
+    known = set(sources())
+    bad = {p.name: sorted(imports_of(p, known) & CLIS) for p in sorted((REPO / "bench").glob("*.py")) if imports_of(p, known) & CLIS}
+    assert bad == {}
