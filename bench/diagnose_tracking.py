@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
+from omegaconf import OmegaConf
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -37,6 +38,7 @@ sys.path.insert(0, str(REPO))
 from data_modules.sequence import SequenceView  # noqa: E402
 from tivne.cli import register_defaults  # noqa: E402
 from tivne.geometry import invert_pose  # noqa: E402
+from tivne.masks.settings import build_provider
 from tivne.render.rays import View  # noqa: E402
 from tivne.render.renderer import render_image  # noqa: E402
 from tivne.slam.run import TrainSettings, build_loop  # noqa: E402
@@ -122,7 +124,7 @@ def main() -> None:
         raise SystemExit("error: every frame needs a ground-truth pose")
     g0 = frames[0].gt_pose.double()
     gt = [invert_pose(g0) @ f.gt_pose.double() for f in frames]  # in the first camera's frame
-    loop = build_loop(settings, view.intrinsics, instantiate(cfg.masks.provider), int(cfg.seed))
+    loop = build_loop(settings, view.intrinsics, build_provider(OmegaConf.to_container(cfg.masks.provider, resolve=True)), int(cfg.seed))
     probe = Probe(loop, gt, args.mode == "oracle", [int(x) for x in args.iters.split(",") if x])
     loop.tracker.track = probe
     for frame in frames:

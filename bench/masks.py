@@ -30,6 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tivne.masks.base import RecordingMasks  # noqa: E402
+from tivne.masks.settings import build_provider
 
 
 def frame_scores(pred: torch.Tensor | None, gt: torch.Tensor) -> tuple[float, float, float]:
@@ -93,7 +94,7 @@ def compose(name: str, args: argparse.Namespace):
 
 
 def run_slam(name: str, args: argparse.Namespace) -> dict[str, float]:
-    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
 
     from tivne.cli import register_defaults
     from tivne.slam.run import run
@@ -101,7 +102,7 @@ def run_slam(name: str, args: argparse.Namespace) -> dict[str, float]:
     register_defaults()  # the config nodes conf/*.yaml compose onto
 
     cfg = compose(name, args)
-    rec = RecordingMasks(instantiate(cfg.masks.provider))
+    rec = RecordingMasks(build_provider(OmegaConf.to_container(cfg.masks.provider, resolve=True)))
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as run_dir:
         metrics = run(cfg, run_dir, masks=rec)
@@ -119,7 +120,7 @@ def run_frames(name: str, args: argparse.Namespace) -> dict[str, float]:
 
     cfg = compose(name, args)
     view = SequenceView(instantiate(cfg.dataset), **OmegaConf.to_container(cfg.data, resolve=True))
-    rec = RecordingMasks(instantiate(cfg.masks.provider))
+    rec = RecordingMasks(build_provider(OmegaConf.to_container(cfg.masks.provider, resolve=True)))
     if rec.needs_tracked_pose:
         raise SystemExit(f"masks={name} needs the SLAM loop; drop --no-slam")
     for i in range(len(view)):

@@ -41,6 +41,7 @@ from tivne.config import (
     RunDirConfig,
     default_tree,
 )
+from tivne.masks.settings import default_nodes
 from tivne.slam.checkpoint import check_resumable
 from tivne.slam.outputs import RunDir, check_run_dir
 from tivne.utils import RunFailed
@@ -64,6 +65,8 @@ def register_defaults() -> None:
     store.store(name="tivne_mesh", node=default_tree((MeshConfig,)))
     store.store(name="tivne_evaluate", node=default_tree((MeshConfig, MeshEvalSettings)))
     store.store(name="tivne_report", node=default_tree((ReportConfig,)))
+    for name, node in default_nodes().items():  # conf/masks/<name>.yaml: the provider and its defaults
+        store.store(group="tivne_masks", name=name, node=node)
     if not OmegaConf.has_resolver(THREADS_RESOLVER):
         OmegaConf.register_new_resolver(THREADS_RESOLVER, lambda: threads_per_job(current_launcher(), usable_cores()))
 

@@ -20,6 +20,7 @@ from data_modules.sequence import SequenceView
 from tivne.cli import one_line_errors
 from tivne.masks.base import MaskProvider
 from tivne.masks.folder import mask_file_name
+from tivne.masks.settings import build_provider
 
 
 def make_masks(provider: MaskProvider, view, out: str | Path, overwrite: bool = False, progress: bool = True) -> dict[str, int]:
@@ -60,7 +61,7 @@ def run(cfg: DictConfig) -> dict[str, int]:
     out = cfg.out  # raises MissingMandatoryValue when not given
     dataset = instantiate(cfg.dataset)
     view = SequenceView(dataset, **OmegaConf.to_container(cfg.data, resolve=True))
-    provider = instantiate(cfg.masks.provider)
+    provider = build_provider(OmegaConf.to_container(cfg.masks.provider, resolve=True))
     return make_masks(provider, view, out, bool(cfg.overwrite), bool(cfg.progress))
 
 

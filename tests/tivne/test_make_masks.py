@@ -51,7 +51,7 @@ def test_make_masks_writes_resumes_and_round_trips(tmp_path):
     (tmp_path / "000013.png").unlink()
     counts = make_masks(provider, view, tmp_path, progress=False)
     assert counts == {"written": 2, "skipped": 2, "empty": 0} and provider.calls == 6
-    folder = FolderMasks(str(tmp_path))
+    folder = FolderMasks(root=str(tmp_path))
     for f in view.frames:
         assert torch.equal(folder(f, None), f.mask)
 

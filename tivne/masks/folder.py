@@ -4,12 +4,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import torch
 
 from data_modules.frame import DatasetError, Frame
 from data_modules.io import read_mask_png
 from tivne.masks.base import MaskContext, MaskProvider
+from tivne.masks.settings import FolderMasksConfig
 
 
 def mask_file_name(index: int) -> str:
@@ -29,12 +31,11 @@ class FolderMasks(MaskProvider):
 
     name = "folder"
 
-    def __init__(self, root: str, match: str = "index", missing: str = "error", suffix: str = ".png") -> None:
-        if match not in ("index", "stem"):
-            raise ValueError(f"masks.match must be 'index' or 'stem', got {match!r}")
-        if missing not in ("error", "none"):
-            raise ValueError(f"masks.missing must be 'error' or 'none', got {missing!r}")
-        self.root = Path(str(root)).expanduser()
+    def __init__(self, **settings: Any) -> None:
+        """``settings``: :class:`tivne.masks.settings.FolderMasksConfig` keys (checked there)."""
+        cfg = FolderMasksConfig(**settings)
+        match, missing, suffix = cfg.match, cfg.missing, cfg.suffix
+        self.root = Path(str(cfg.root)).expanduser()
         if not self.root.is_dir():
             raise DatasetError(self.root, "mask folder not found")
         self.match = match

@@ -9,6 +9,7 @@ functions in :mod:`tivne.masks.seeds` (seeds against earlier frames or the map) 
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 import torch
@@ -18,6 +19,7 @@ from tivne.geometry import pixel_grid
 from tivne.masks.base import MaskContext, MaskProvider
 from tivne.masks.seeds import free_space_seeds, march_map_depth, residual_seeds
 from tivne.masks.segments import clean_mask
+from tivne.masks.settings import GeometricMasksConfig
 
 
 def upsample_mask(low: torch.Tensor, stride: int, like: torch.Tensor) -> torch.Tensor:
@@ -58,37 +60,16 @@ class GeometricMasks(MaskProvider):
     name = "geometric"
     needs_tracked_pose = True
 
-    def __init__(
-        self,
-        source: str = "frames",
-        lags: tuple[int, ...] = (5, 30),
-        reference: str = "last_mapped",
-        stride: int = 4,
-        abs_threshold: float = 0.03,
-        k_sigma: float = 6.0,
-        color_threshold: float | None = None,
-        far: float = 8.0,
-        step: float = 0.04,
-        open_radius: int = 1,
-        close_radius: int = 1,
-        min_area: int = 12,
-        seed_fraction: float = 0.04,
-        keep_fraction: float = 0.5,
-        max_area_fraction: float = 0.4,
-        rel_jump: float = 0.1,
-        abs_jump: float = 0.03,
-        temporal: bool = True,
-        predict_margin: int = 2,
-        revise_lags: tuple[int, int] | None = (5, 30),
-        score_threshold: float | None = 3.0,
-        score_ratio: float = 2.0,
-    ) -> None:
-        if source not in ("frames", "map"):
-            raise ValueError(f"masks.source must be 'frames' or 'map', got {source!r}")
-        if reference not in ("last_mapped", "frame", "first"):
-            raise ValueError(f"masks.reference must be 'last_mapped', 'frame' or 'first', got {reference!r}")
-        if stride < 1:
-            raise ValueError(f"masks.stride must be >= 1, got {stride}")
+    def __init__(self, **settings: Any) -> None:
+        """``settings``: :class:`tivne.masks.settings.GeometricMasksConfig` keys (checked there, with
+        their defaults; a bad value is one line naming ``masks.provider.<key>``)."""
+        cfg = GeometricMasksConfig(**settings)
+        source, lags, reference, stride = cfg.source, cfg.lags, cfg.reference, cfg.stride
+        abs_threshold, k_sigma, color_threshold, far, step = cfg.abs_threshold, cfg.k_sigma, cfg.color_threshold, cfg.far, cfg.step
+        open_radius, close_radius, min_area, seed_fraction = cfg.open_radius, cfg.close_radius, cfg.min_area, cfg.seed_fraction
+        keep_fraction, max_area_fraction, rel_jump, abs_jump = cfg.keep_fraction, cfg.max_area_fraction, cfg.rel_jump, cfg.abs_jump
+        temporal, predict_margin, revise_lags = cfg.temporal, cfg.predict_margin, cfg.revise_lags
+        score_threshold, score_ratio = cfg.score_threshold, cfg.score_ratio
         self.source = source
         self.lags = tuple(int(x) for x in lags)
         self.history: list[tuple[int, torch.Tensor, torch.Tensor]] = []  # (frame_number, low-res depth, pose)

@@ -17,6 +17,7 @@ import torch.nn.functional as F
 
 from data_modules.frame import DatasetError, Frame
 from tivne.masks.base import MaskContext, MaskProvider
+from tivne.masks.settings import MaskRCNNConfig
 
 COCO_DYNAMIC = (1, 2, 3, 4, 6, 8, 16, 17, 18, 19, 88)  # person … dog, horse, teddy bear
 INSTALL_HINT = "maskrcnn needs torchvision: pip install 'tivne[detect]'"
@@ -86,17 +87,12 @@ class MaskRCNNMasks(MaskProvider):
 
     name = "maskrcnn"
 
-    def __init__(
-        self,
-        weights: str | None = None,
-        classes: Sequence[int] = COCO_DYNAMIC,
-        score_threshold: float = 0.5,
-        mask_threshold: float = 0.5,
-        input_size: int | None = 640,
-        dilate: int = 0,
-        device: str | None = None,
-        model: Callable[[list[torch.Tensor]], list[dict[str, Any]]] | None = None,
-    ) -> None:
+    def __init__(self, model: Callable[[list[torch.Tensor]], list[dict[str, Any]]] | None = None, **settings: Any) -> None:
+        """``settings``: :class:`tivne.masks.settings.MaskRCNNConfig` keys (checked there); ``model``:
+        a detector to use instead of loading ``weights`` (tests)."""
+        cfg = MaskRCNNConfig(**settings)
+        weights, classes, score_threshold, mask_threshold = cfg.weights, cfg.classes, cfg.score_threshold, cfg.mask_threshold
+        input_size, dilate, device = cfg.input_size, cfg.dilate, cfg.device
         if model is None:
             if weights is None:
                 raise MaskRCNNError("masks.weights", "a weights file is required (masks.provider.weights=PATH)")

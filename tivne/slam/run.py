@@ -43,6 +43,7 @@ from tivne.config import (
 from tivne.evaluation import evaluate_run
 from tivne.field.networks import TimeVaryingField
 from tivne.masks.base import MaskProvider
+from tivne.masks.settings import build_provider, check_provider
 from tivne.meshing import select_mesh_times
 from tivne.render.samplers import PixelSampler
 from tivne.slam.allocation import VoxelAllocator
@@ -111,7 +112,7 @@ def build_system(
     """The LightningModule around a loop composed from ``cfg``; ``masks`` (a provider object)
     replaces ``cfg.masks.provider``."""
     s = settings or TrainSettings.from_config(cfg)
-    provider = masks if masks is not None else instantiate(cfg.masks.provider)
+    provider = masks if masks is not None else build_provider(plain(cfg.masks.provider))
     loop = build_loop(s, intrinsics, provider, int(cfg.seed))
     writer = RunWriter(run_dir, s.output, s.mesh, run_config(cfg))
     return TivNeSLAM(loop, writer, s.output.image_every)
@@ -147,6 +148,8 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     :class:`tivne.masks.base.RecordingMasks` around the configured one).
     """
     settings = TrainSettings.from_config(cfg)  # before any data is read
+    if masks is None:
+        check_provider(plain(cfg.masks.provider))
     options = run_dir_options(cfg)
     device = require_device(settings.trainer.accelerator)
     check_run_dir(RunDir(run_dir), options.resume, options.overwrite)  # results there are refused, nothing is changed yet

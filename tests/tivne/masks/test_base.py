@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -26,13 +27,21 @@ def test_none_and_dataset_providers():
 
 @pytest.mark.parametrize("name", ["dataset", "none", "folder", "maskrcnn", "geometric"])
 def test_every_mask_config_names_a_provider(name):
-    from omegaconf import OmegaConf
-
-    cfg = OmegaConf.load(CONF / "masks" / f"{name}.yaml")
-    target = cfg.provider._target_
-    module, cls = target.rsplit(".", 1)
     import importlib
 
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from tivne.masks.settings import PROVIDERS
+
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose("config", overrides=[f"masks={name}"])
+    node = OmegaConf.to_container(cfg.masks.provider)
+    target = node.pop("_target_")
+    assert PROVIDERS[target][0] == name
+    settings = PROVIDERS[target][1]
+    assert set(node) == {f.name for f in dataclasses.fields(settings)}  # every setting, from its one default
+    module, cls = target.rsplit(".", 1)
     assert hasattr(importlib.import_module(module), cls)
 
 

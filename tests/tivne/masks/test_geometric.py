@@ -14,19 +14,30 @@ from data_modules.frame import Intrinsics
 from tivne.config import RenderConfig
 from tivne.masks.base import DatasetMasks, MaskContext, RecordingMasks
 from tivne.masks.geometric import GeometricMasks
+from tivne.masks.settings import build_provider
 
 sys.path.insert(0, str(Path(__file__).parent))
 from mask_scenes import CONF, H, W, box_depth, make_frame  # noqa: E402
 
 
-def test_geometric_config_instantiates_with_hydra():
+def test_geometric_config_builds_through_the_checked_settings():
     from hydra import compose, initialize_config_dir
-    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    from tivne.config import ConfigError
+    from tivne.masks.settings import check_provider
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="config", overrides=["masks=geometric"])
-    provider = instantiate(cfg.masks.provider)
+    node = OmegaConf.to_container(cfg.masks.provider, resolve=True)
+    provider = build_provider(node)
     assert isinstance(provider, GeometricMasks) and provider.reference == "last_mapped"
+    with pytest.raises(ConfigError, match=r"^masks\.provider\.stride=0: must be >= 1$"):
+        build_provider(node | {"stride": 0})
+    with pytest.raises(ConfigError, match=r"^masks\.provider\.revise_lags=\[30, 5\]"):
+        check_provider(node | {"revise_lags": [30, 5]})
+    with pytest.raises(ConfigError, match=r"^masks\.provider\._target_='os\.system': not a TivNe mask provider"):
+        build_provider(node | {"_target_": "os.system"})  # only the project's own providers are ever built
 
 
 class BoxField(torch.nn.Module):
@@ -77,9 +88,9 @@ def test_geometric_reference_time_choices():
         provider(make_frame(0, depth=depth), MaskContext(field, torch.eye(4), K, 0.3, RenderConfig(), 0))
         provider(make_frame(1, depth=depth), MaskContext(field, torch.eye(4), K, 0.5, RenderConfig(), 1))
         assert field.taus[-1] == pytest.approx(expected)  # last_mapped falls back to the previous frame's τ
-    with pytest.raises(ValueError, match="reference"):
+    with pytest.raises(ValueError, match=r"masks\.provider\.reference="):
         GeometricMasks(reference="later")
-    with pytest.raises(ValueError, match="source"):
+    with pytest.raises(ValueError, match=r"masks\.provider\.source="):
         GeometricMasks(source="flow")
 
 

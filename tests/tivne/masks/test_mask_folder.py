@@ -22,10 +22,10 @@ def test_folder_masks_by_index_and_stem(tmp_path):
     write_mask_png(tmp_path / "000007.png", m)
     write_mask_png(tmp_path / "12.png", ~m)
     write_mask_png(tmp_path / "rgb_0042.png", m)
-    provider = FolderMasks(str(tmp_path))
+    provider = FolderMasks(root=str(tmp_path))
     assert torch.equal(provider(make_frame(7), None), m)
     assert torch.equal(provider(make_frame(12), None), ~m)  # other zero padding
-    stem = FolderMasks(str(tmp_path), match="stem")
+    stem = FolderMasks(root=str(tmp_path), match="stem")
     frame = make_frame(99)
     frame.source = "rgb_0042.jpg"  # a reader that records its source file
     assert torch.equal(stem(frame, None), m)
@@ -53,7 +53,7 @@ def test_folder_masks_by_stem_use_the_readers_source_file(tmp_path):
         write_mask_png(tmp_path / "masks" / f"{stem}.png", masks[stem])
         write_mask_png(tmp_path / "masks" / mask_file_name(k), ~masks[stem])  # index names: must not be used
     sequence = FolderSequence(tmp_path / "rec")
-    provider = FolderMasks(str(tmp_path / "masks"), match="stem")
+    provider = FolderMasks(root=str(tmp_path / "masks"), match="stem")
     for k, stem in enumerate(stems):
         frame = sequence[k]
         assert frame.source == f"{stem}.png"
@@ -64,10 +64,10 @@ def test_folder_masks_by_stem_use_the_readers_source_file(tmp_path):
 
 
 def test_folder_masks_clear_errors(tmp_path):
-    provider = FolderMasks(str(tmp_path))
+    provider = FolderMasks(root=str(tmp_path))
     with pytest.raises(DatasetError, match=r"000003\.png: mask for frame 3 not found"):
         provider(make_frame(3), None)
-    assert FolderMasks(str(tmp_path), missing="none")(make_frame(3), None) is None
+    assert FolderMasks(root=str(tmp_path), missing="none")(make_frame(3), None) is None
     (tmp_path / "000004.png").write_bytes(b"not a png")
     with pytest.raises(DatasetError, match=r"000004\.png: cannot decode image"):
         provider(make_frame(4), None)
@@ -75,4 +75,4 @@ def test_folder_masks_clear_errors(tmp_path):
     with pytest.raises(DatasetError, match=r"000005\.png: mask is 10x10 but the frame is 64x48"):
         provider(make_frame(5), None)
     with pytest.raises(DatasetError, match="mask folder not found"):
-        FolderMasks(str(tmp_path / "nope"))
+        FolderMasks(root=str(tmp_path / "nope"))
