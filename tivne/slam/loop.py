@@ -60,7 +60,7 @@ class SlamLoop:
         self.poses = PoseBook(self.trajectory, self.keyframes.pose_map)
         self.clock: Clock | None = None
         self.last_mapped_tau = 0.0
-        self.last_view: View | None = None  # the latest tracked frame, when it is no keyframe (the final pass maps it too)
+        self.last_view: View | None = None  # the latest tracked frame's observation when it is no keyframe (the final pass maps it too)
         self.timers = Timers()
         self.generator = torch.Generator().manual_seed(seed)
         self.final_pass_done = False
@@ -134,7 +134,10 @@ class SlamLoop:
         """The final mapping pass over every keyframe and the last tracked frame (once)."""
         if self.final_pass_done or not len(self.trajectory):
             return
-        views = self.keyframes.views() + ([self.last_view] if self.last_view is not None else [])
+        views = self.keyframes.views()
+        if self.last_view is not None:  # its pose as the trajectory holds it now (its keyframe may have moved)
+            last = self.last_view
+            views.append(dataclasses.replace(last, pose=self.poses.pose(last.frame_id).to(last.pose.dtype)))
         start = time.perf_counter()
         self.between_frames = False
         final_pass(self.mapper, views, self.K, self.generator)
