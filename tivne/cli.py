@@ -14,6 +14,7 @@ applies the run-directory rules of ``tivne.train`` before Hydra writes into the 
 
 from __future__ import annotations
 
+import difflib
 import functools
 import os
 import sys
@@ -27,6 +28,7 @@ from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from data_modules.errors import BAD_INPUT as DATA_BAD_INPUT
 from data_modules.errors import EXIT_BAD_INPUT, error_line, find_cause
@@ -41,6 +43,8 @@ from tivne.config import (
     RunDirConfig,
     default_tree,
 )
+from tivne import runlock
+from tivne.readers import DataConfig, check_dataset_node, check_masks_node
 from tivne.slam.checkpoint import check_resumable
 from tivne.slam.outputs import RunDir, check_run_dir
 from tivne.utils import RunFailed
@@ -102,7 +106,9 @@ def threads_per_job(launcher: Mapping[str, Any], cores: int) -> int | None:
 
 def run_sequence(run_dir: str | Path) -> tuple[SequenceView, RenderConfig]:
     """The sequence as a run streamed it and the run's render settings, rebuilt from its own
-    run_dir/.hydra/config.yaml."""
+    run_dir/.hydra/config.yaml -- data, never code: the dataset node must name one of TivNe's
+    readers with checked arguments (:func:`tivne.readers.check_dataset_node`) before anything is
+    instantiated, and ``data`` / ``render`` are checked sections."""
     root = Path(run_dir)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: run directory not found")
@@ -110,9 +116,47 @@ def run_sequence(run_dir: str | Path) -> tuple[SequenceView, RenderConfig]:
     if not config.is_file():
         raise FileNotFoundError(f"{config}: run config not found")
     cfg = OmegaConf.load(config)
-    data = OmegaConf.to_container(cfg.data, resolve=True) if "data" in cfg else {}
-    render = RenderConfig.from_mapping(OmegaConf.to_container(cfg.render, resolve=True) if "render" in cfg else {})
-    return SequenceView(instantiate(cfg.dataset), **data), render
+    if "dataset" not in cfg:
+        raise ConfigError(f"{config}: no dataset node; not a config written by tivne.train")
+    dataset, data, render = (saved_section(cfg, config, key) for key in ("dataset", "data", "render"))
+    check_dataset_node(dataset)
+    view = DataConfig.from_mapping(data).view_kwargs()
+    return SequenceView(instantiate(cfg.dataset), **view), RenderConfig.from_mapping(render)
+
+
+# Top-level keys of a training config besides the checked sections (tivne.config.SECTIONS).
+RUN_KEYS = ("paths", "data", "dataset", "masks", "seed", "hydra")
+
+
+def check_run_inputs(cfg: DictConfig) -> DataConfig:
+    """What ``tivne.train`` reads besides its sections, checked before anything is instantiated:
+    no unknown top-level key (``+resmue=true`` is refused, not ignored), a dataset node naming one
+    of TivNe's readers with checked arguments, an allowed mask provider; returns ``data.*``."""
+    known = {*default_tree(SECTIONS), *RUN_KEYS}
+    unknown = sorted(set(cfg) - known)
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], sorted(known), n=1)
+        hint = f"did you mean {close[0]}? " if close else ""
+        raise ConfigError(f"{unknown[0]}: unknown setting ({hint}known top-level keys: {', '.join(sorted(known - {'hydra'}))})")
+    check_dataset_node(OmegaConf.to_container(cfg.dataset, resolve=True, throw_on_missing=False))
+    provider = OmegaConf.select(cfg, "masks.provider")
+    if provider is not None:
+        check_masks_node(OmegaConf.to_container(provider, resolve=True, throw_on_missing=False))
+    return DataConfig.from_mapping(OmegaConf.to_container(cfg.data, resolve=True))
+
+
+def saved_section(cfg: DictConfig, config: Path, key: str) -> dict[str, Any]:
+    """``cfg[key]`` of a saved run config as plain values ({} when absent), refused in one line
+    naming the file when it is not a mapping or does not resolve."""
+    if key not in cfg:
+        return {}
+    node = cfg[key]
+    if not isinstance(node, DictConfig):
+        raise ConfigError(f"{config}: {key}={node!r}: must be a mapping")
+    try:
+        return OmegaConf.to_container(node, resolve=True, throw_on_missing=False)  # type: ignore[return-value]
+    except OmegaConfBaseException as exc:
+        raise ConfigError(f"{config}: {key}: " + str(exc).splitlines()[0]) from None
 
 
 def bad_input_cause(exc: BaseException) -> BaseException | None:
@@ -166,6 +210,7 @@ class RunDirGuard(Callback):
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         try:
             run = RunDir(OmegaConf.select(config, "hydra.run.dir"))
+            runlock.check_free(run.root)  # a live writer is named first, whatever the folder holds
             options = RunDirConfig.from_mapping({key: config.get(key, False) for key in ("resume", "overwrite")})
             saved = current = None
             if options.resume and run.config.is_file():
@@ -174,9 +219,18 @@ class RunDirGuard(Callback):
             check_run_dir(run, options.resume, options.overwrite, saved, current)
             if options.resume:
                 check_resumable(run.checkpoint)
+            runlock.acquire(run.root)  # one writer per folder, before Hydra writes .hydra/ there
+            try:  # again under the lock: a run that held it may have written results meanwhile
+                check_run_dir(run, options.resume, options.overwrite, saved, current)
+            except BaseException:
+                runlock.release(run.root)
+                raise
         except Exception as exc:  # noqa: BLE001 -- bad input becomes one line; anything else is a bug
             report_bad_input(exc)
             raise
+
+    def on_run_end(self, config: DictConfig, **kwargs: Any) -> None:
+        runlock.release(OmegaConf.select(config, "hydra.run.dir"))
 
 
 def mesh_settings(node: DictConfig) -> MeshConfig:

@@ -18,6 +18,7 @@ import sys
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from data_modules.errors import overrides_checked
 from tivne.cli import mesh_settings, one_line_errors, register_defaults, run_sequence
 from tivne.config import MeshEvalSettings
 from tivne.evaluation import evaluate_run
@@ -26,6 +27,7 @@ from tivne.slam.outputs import RunDir
 register_defaults()
 
 
+@overrides_checked
 @hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> None:

@@ -14,6 +14,7 @@ import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from data_modules.errors import overrides_checked
 from data_modules.frame import DatasetError
 from data_modules.io import read_mask_png, write_mask_png
 from data_modules.sequence import SequenceView
@@ -64,6 +65,7 @@ def run(cfg: DictConfig) -> dict[str, int]:
     return make_masks(provider, view, out, bool(cfg.overwrite), bool(cfg.progress))
 
 
+@overrides_checked
 @hydra.main(config_path="../conf", config_name="make_masks", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> None:

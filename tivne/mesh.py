@@ -18,6 +18,7 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
+from data_modules.errors import overrides_checked
 from tivne.cli import mesh_settings, one_line_errors, register_defaults
 from tivne.config import MeshConfig
 from tivne.field.networks import time_to_tau
@@ -55,6 +56,7 @@ def mesh_run(
     return written
 
 
+@overrides_checked
 @hydra.main(config_path="../conf", config_name="mesh", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> None:

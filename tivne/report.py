@@ -13,6 +13,7 @@ import sys
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from data_modules.errors import overrides_checked
 from data_modules.frame import DatasetError
 from tivne.cli import error_line, one_line_errors, register_defaults, run_sequence
 from tivne.config import RenderConfig, ReportConfig
@@ -22,6 +23,7 @@ from tivne.slam.outputs import RunDir
 register_defaults()
 
 
+@overrides_checked
 @hydra.main(config_path="../conf", config_name="report", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> None:

@@ -29,7 +29,8 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from data_modules.sequence import SequenceDataModule
-from tivne.cli import in_multirun, one_line_errors, register_defaults
+from data_modules.errors import overrides_checked
+from tivne.cli import check_run_inputs, in_multirun, one_line_errors, register_defaults
 from tivne.config import (
     FieldConfig,
     KeyframeConfig,
@@ -55,7 +56,9 @@ from tivne.slam.checkpoint import load_resume_state
 from tivne.slam.keyframes import KeyframePolicy
 from tivne.slam.outputs import RunDir, check_run_dir, tensorboard_hparams
 from tivne.slam.system import TivNeSLAM
-from tivne.utils import RunFailed, RunInterrupted, configure_runtime, interrupt_signals, require_device
+from tivne.limits import check_run_size
+from tivne.runlock import run_lock
+from tivne.utils import InterruptSignalsFirst, RunFailed, RunInterrupted, configure_runtime, interrupt_signals, require_device
 
 register_defaults()
 
@@ -140,16 +143,27 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     """Run SLAM over the configured sequence and return metrics.json's content.
 
     ``masks``: a provider object to use instead of ``cfg.masks.provider`` (e.g. a benchmark's
-    :class:`tivne.masks.base.RecordingMasks` around the configured one).
+    :class:`tivne.masks.base.RecordingMasks` around the configured one). One run at a time
+    writes into ``run_dir`` (:mod:`tivne.runlock`).
     """
+    with run_lock(run_dir):
+        return run_locked(cfg, run_dir, masks)
+
+
+def run_locked(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None) -> dict[str, Any]:
+    """:func:`run` once the run folder's lock is held."""
     settings = TrainSettings.from_config(cfg)  # before any data is read
+    data = check_run_inputs(cfg)  # known keys, TivNe's own reader and mask provider, data.*
     options = run_dir_options(cfg)
     device = require_device(settings.trainer.accelerator)
     check_run_dir(RunDir(run_dir), options.resume, options.overwrite)  # results there are refused, nothing is changed yet
     runtime = configure_runtime(settings.runtime.threads, settings.runtime.tune_allocator)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     dataset = instantiate(cfg.dataset)
-    datamodule = SequenceDataModule(dataset, **plain(cfg.data))
+    datamodule = SequenceDataModule(dataset, **data.view_kwargs())
+    size = datamodule.intrinsics
+    check_run_size(size.width, size.height, len(datamodule.view), settings.keyframe.every, settings.keyframe.max_stored,
+                   settings.field.max_capacity, settings.field.embed_dim)  # before the first frame: tivne.limits
     select_mesh_times(datamodule.view.timestamps, list(settings.mesh.times) or None)  # refuse bad times before the run
     resume = prepare_run_dir(cfg, options, run_dir, datamodule.view.timestamps)
     system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks)
@@ -168,6 +182,7 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
         log_every_n_steps=1,
         enable_progress_bar=settings.trainer.progress_bar,
         default_root_dir=str(run_dir),
+        callbacks=[InterruptSignalsFirst()],  # TivNe's SIGINT / SIGTERM handlers over Lightning's
     )
     try:
         with interrupt_signals():
@@ -208,6 +223,7 @@ def check_tracked(run_dir: str | Path, metrics: dict[str, Any]) -> None:
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
 
 
+@overrides_checked
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> float | None:
@@ -215,7 +231,8 @@ def main(cfg: DictConfig) -> float | None:
     try:
         metrics = run(cfg, run_dir)
     except RunInterrupted as exc:
-        print(f"interrupted by {exc}: partial results (complete: false) in {run_dir}", file=sys.stderr)
+        way = "resume=true continues it" if RunDir(run_dir).checkpoint.is_file() else "no checkpoint was written; overwrite=true starts it again"
+        print(f"interrupted by {exc}: partial results (complete: false) in {run_dir}; {way}", file=sys.stderr)
         sys.exit(exc.exit_code)
     keys = ["frames", "s_per_frame", "track_ms_per_iter", "map_ms_per_iter", "ate_rmse_m", "peak_rss_mb"]
     print(json.dumps({k: metrics.get(k) for k in keys}))
