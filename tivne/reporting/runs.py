@@ -111,10 +111,11 @@ def check_metric(key: str, value: Any) -> str | None:
         return None if isinstance(value, bool) else "must be true or false"
     if key in TEXT_KEYS or key.endswith("_reason"):
         return None if isinstance(value, str) else "must be a string"
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None if key not in COUNT_KEYS and key not in DEFAULT_METRICS else "must be a number"
-    if key in COUNT_KEYS and (not float(value).is_integer() or value < 0):
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if key in COUNT_KEYS and not (number and math.isfinite(value) and float(value).is_integer() and value >= 0):
         return "must be a non-negative integer"
+    if key in DEFAULT_METRICS and not number:
+        return "must be a number"
     return None
 
 
