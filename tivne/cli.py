@@ -18,7 +18,7 @@ import difflib
 import functools
 import os
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +33,7 @@ from omegaconf.errors import OmegaConfBaseException
 from data_modules.errors import BAD_INPUT as DATA_BAD_INPUT
 from data_modules.errors import EXIT_BAD_INPUT, error_line, find_cause
 from data_modules.sequence import SequenceView
+from tivne import runlock
 from tivne.config import (
     SECTIONS,
     ConfigError,
@@ -43,7 +44,6 @@ from tivne.config import (
     RunDirConfig,
     default_tree,
 )
-from tivne import runlock
 from tivne.readers import DataConfig, check_dataset_node, check_masks_node
 from tivne.slam.checkpoint import check_resumable
 from tivne.slam.outputs import RunDir, check_run_dir
@@ -128,21 +128,31 @@ def run_sequence(run_dir: str | Path) -> tuple[SequenceView, RenderConfig]:
 RUN_KEYS = ("paths", "data", "dataset", "masks", "seed", "hydra")
 
 
-def check_run_inputs(cfg: DictConfig) -> DataConfig:
-    """What ``tivne.train`` reads besides its sections, checked before anything is instantiated:
-    no unknown top-level key (``+resmue=true`` is refused, not ignored), a dataset node naming one
-    of TivNe's readers with checked arguments, an allowed mask provider; returns ``data.*``."""
-    known = {*default_tree(SECTIONS), *RUN_KEYS}
+def check_known_keys(cfg: DictConfig, known: Iterable[str]) -> None:
+    """Refuse a top-level key the command does not know (``+resmue=true`` is an error, not ignored)."""
+    known = {*known, "hydra"}
     unknown = sorted(set(cfg) - known)
     if unknown:
         close = difflib.get_close_matches(unknown[0], sorted(known), n=1)
         hint = f"did you mean {close[0]}? " if close else ""
         raise ConfigError(f"{unknown[0]}: unknown setting ({hint}known top-level keys: {', '.join(sorted(known - {'hydra'}))})")
+
+
+def check_stream_inputs(cfg: DictConfig) -> DataConfig:
+    """The dataset node (one of TivNe's readers, checked arguments), the mask provider (an allowed
+    one) and ``data.*``, checked before anything is instantiated; returns ``data.*``."""
     check_dataset_node(OmegaConf.to_container(cfg.dataset, resolve=True, throw_on_missing=False))
     provider = OmegaConf.select(cfg, "masks.provider")
     if provider is not None:
         check_masks_node(OmegaConf.to_container(provider, resolve=True, throw_on_missing=False))
     return DataConfig.from_mapping(OmegaConf.to_container(cfg.data, resolve=True))
+
+
+def check_run_inputs(cfg: DictConfig) -> DataConfig:
+    """What ``tivne.train`` reads besides its sections: no unknown top-level key, then
+    :func:`check_stream_inputs`."""
+    check_known_keys(cfg, (*default_tree(SECTIONS), *RUN_KEYS))
+    return check_stream_inputs(cfg)
 
 
 def saved_section(cfg: DictConfig, config: Path, key: str) -> dict[str, Any]:

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import hydra
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from data_modules.errors import overrides_checked
 from data_modules.frame import DatasetError
 from data_modules.io import read_mask_png, write_mask_png
 from data_modules.sequence import SequenceView
-from tivne.cli import one_line_errors
+from tivne.cli import check_known_keys, check_stream_inputs, one_line_errors
 from tivne.masks.base import MaskProvider
 from tivne.masks.folder import mask_file_name
 
@@ -59,8 +59,10 @@ def make_masks(provider: MaskProvider, view, out: str | Path, overwrite: bool = 
 
 def run(cfg: DictConfig) -> dict[str, int]:
     out = cfg.out  # raises MissingMandatoryValue when not given
+    check_known_keys(cfg, ("paths", "data", "dataset", "masks", "out", "overwrite", "progress"))
+    data = check_stream_inputs(cfg)
     dataset = instantiate(cfg.dataset)
-    view = SequenceView(dataset, **OmegaConf.to_container(cfg.data, resolve=True))
+    view = SequenceView(dataset, **data.view_kwargs())
     provider = instantiate(cfg.masks.provider)
     return make_masks(provider, view, out, bool(cfg.overwrite), bool(cfg.progress))
 

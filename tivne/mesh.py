@@ -19,7 +19,7 @@ import torch
 from omegaconf import DictConfig
 
 from data_modules.errors import overrides_checked
-from tivne.cli import mesh_settings, one_line_errors, register_defaults
+from tivne.cli import check_known_keys, mesh_settings, one_line_errors, register_defaults
 from tivne.config import MeshConfig
 from tivne.field.networks import time_to_tau
 from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
@@ -60,6 +60,7 @@ def mesh_run(
 @hydra.main(config_path="../conf", config_name="mesh", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> None:
+    check_known_keys(cfg, ("run_dir", "every", "device", "mesh"))
     written = mesh_run(cfg.run_dir, mesh_settings(cfg.mesh), cfg.every, cfg.device)
     for ts, n_verts, n_faces, path in written:
         if n_faces == 0:

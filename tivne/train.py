@@ -28,8 +28,8 @@ from hydra.utils import instantiate
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
-from data_modules.sequence import SequenceDataModule
 from data_modules.errors import overrides_checked
+from data_modules.sequence import SequenceDataModule
 from tivne.cli import check_run_inputs, in_multirun, one_line_errors, register_defaults
 from tivne.config import (
     FieldConfig,
@@ -49,15 +49,15 @@ from tivne.config import (
 )
 from tivne.evaluation import evaluate_run
 from tivne.evaluation.objective import objective_value
+from tivne.limits import check_run_size
 from tivne.masks.base import MaskProvider
 from tivne.meshing import select_mesh_times
 from tivne.render.samplers import PixelSampler
+from tivne.runlock import run_lock
 from tivne.slam.checkpoint import load_resume_state
 from tivne.slam.keyframes import KeyframePolicy
 from tivne.slam.outputs import RunDir, check_run_dir, tensorboard_hparams
 from tivne.slam.system import TivNeSLAM
-from tivne.limits import check_run_size
-from tivne.runlock import run_lock
 from tivne.utils import InterruptSignalsFirst, RunFailed, RunInterrupted, configure_runtime, interrupt_signals, require_device
 
 register_defaults()
