@@ -69,8 +69,8 @@ def test_lock_in_a_read_only_folder_names_the_folder(tmp_path):
 
 
 def start(run_dir: Path, *extra: str) -> subprocess.Popen:
-    args = ["experiment=smoke", "dataset.cache_dir=null", "dataset.width=80", "dataset.height=60", "dataset.num_frames=100",
-            "data.max_frames=100", "trainer.progress_bar=false", f"hydra.run.dir={run_dir}", *extra]
+    args = ["experiment=smoke", "dataset.cache_dir=null", "dataset.width=80", "dataset.height=60", "dataset.num_frames=60",
+            "data.max_frames=60", "trainer.progress_bar=false", f"hydra.run.dir={run_dir}", *extra]
     env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1")
     return subprocess.Popen([sys.executable, "-m", "tivne.train", *args], cwd=REPO, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
@@ -92,7 +92,7 @@ def test_two_runs_into_one_folder_the_second_is_refused_the_first_is_whole(tmp_p
     assert len(errors) == 1 and f"another run (pid {first.pid}) is writing into this folder" in errors[0], err2[-2000:]
     assert first.returncode == 0, err1[-2000:]
     metrics = json.loads((run / "metrics.json").read_text())
-    assert metrics["complete"] is True and metrics["frames"] == 100
+    assert metrics["complete"] is True and metrics["frames"] == 60
     assert "output.image_every=7" not in yaml.safe_load((run / ".hydra" / "overrides.yaml").read_text())
     events = [p.name for p in (run / "tb").rglob("events.out.tfevents.*")]
     assert events and all(f".{first.pid}." in name for name in events), events  # written by the first run only
