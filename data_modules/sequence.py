@@ -71,6 +71,12 @@ def _is_count(value: object) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1
 
 
+def _count_rule(value: object) -> str:
+    """The rule a bad count broke: ">= 1" for an integer below it, "an integer >= 1" otherwise."""
+    integer = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    return ">= 1" if integer else "an integer >= 1"
+
+
 def resize_frame(frame: Frame, width: int, height: int) -> Frame:
     """Resize a frame: area-averaged colour, nearest-neighbour depth and mask (no mixed depths at edges)."""
     if (frame.width, frame.height) == (width, height):
@@ -96,9 +102,9 @@ class SequenceView(SequenceDataset):
         depth_max: float | None = None,
     ) -> None:
         if not _is_count(stride):
-            raise DatasetError("data.stride", f"must be >= 1 (an integer), got {stride!r}")
+            raise DatasetError("data.stride", f"must be {_count_rule(stride)}, got {stride!r}")
         if max_frames is not None and not _is_count(max_frames):
-            raise DatasetError("data.max_frames", f"must be >= 1 (an integer) or null, got {max_frames!r}")
+            raise DatasetError("data.max_frames", f"must be {_count_rule(max_frames)} or null, got {max_frames!r}")
         for key, value in (("depth_min", depth_min), ("depth_max", 1.0 if depth_max is None else depth_max)):
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
                 raise DatasetError(f"data.{key}", f"must be a finite number >= 0, got {value!r}")

@@ -24,6 +24,7 @@ keeps the 1:1 colour/depth pixel registration. Pixels that map from outside the 
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 
 import cv2
@@ -88,6 +89,13 @@ def _list_file(root: Path, name: str) -> tuple[np.ndarray, list[Path], list[int]
     return ts, files, [r.lineno for r in rows], path
 
 
+def _check_number(key: str, value: object, low: float, strict: bool = False) -> None:
+    """``dataset.<key>`` a finite number >= ``low`` (> with ``strict``), or one-line DatasetError."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or value < low or (strict and value == low):
+        raise DatasetError(f"dataset.{key}", f"must be a finite number {'>' if strict else '>='} {low:g}, got {value!r}")
+
+
 class TUMSequence(SequenceDataset):
     """A TUM RGB-D sequence folder (``rgbd_dataset_freiburgX_<name>``).
 
@@ -128,6 +136,10 @@ class TUMSequence(SequenceDataset):
     ) -> None:
         self.root = require_dir(root, f"{type(self).__name__} sequence folder")
         self.name = name or self.root.name
+        _check_number("max_time_diff", max_time_diff, 0.0)
+        _check_number("depth_scale", depth_scale, 0.0, strict=True)
+        if gt_max_gap is not None:
+            _check_number("gt_max_gap", gt_max_gap, 0.0)
         camera = camera or self.default_camera
         if camera != "custom" and camera not in CAMERAS:
             raise DatasetError("dataset.camera", f"unknown camera {camera!r} (use {', '.join(CAMERAS)} or custom)")

@@ -300,8 +300,10 @@ CASES: tuple[Case, ...] = (
          setup=empty_dir("run"), read_only=True),
     Case("inspect: max_frames 0", "inspect", (*TINY, "data.max_frames=0"), "data.max_frames: must be >= 1"),
     Case("inspect: sheet not a PNG", "inspect", (*TINY, "sheet_out={d}/sheet.xyz"), "sheet_out: 'sheet.xyz': must be a .png path"),
-    Case("inspect: fractional stride", "inspect", (*TINY, "data.stride=1.5"), "data.stride: must be >= 1 (an integer), got 1.5"),
+    Case("inspect: fractional stride", "inspect", (*TINY, "data.stride=1.5"), "data.stride: must be an integer >= 1, got 1.5"),
     Case("inspect: NaN depth_max", "inspect", (*TINY, "data.depth_max=nan"), "data.depth_max: must be a finite number"),
+    Case("inspect: negative max_time_diff", "inspect", ("dataset=tum", "dataset.root={d}/seq", "dataset.max_time_diff=-1"),
+         "dataset.max_time_diff: must be a finite number >= 0", setup=tum_with(lambda seq: None)),
     Case("inspect: sheet_frames 0", "inspect", (*TINY, "sheet_frames=0"), "sheet_frames: must be an integer >= 1"),
     Case("inspect: unparsable override", "inspect", (*TINY, "sheet_out={d}/a=b.png"), "not a valid override"),
     # mesh
