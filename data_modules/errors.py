@@ -8,7 +8,11 @@ error in its own exception, so the cause chain is searched.
 
 from __future__ import annotations
 
+import functools
 import re
+import sys
+from collections.abc import Callable
+from typing import Any
 
 from omegaconf.errors import MissingMandatoryValue
 
@@ -41,3 +45,38 @@ def error_line(exc: BaseException) -> str:
         text = str(exc) or type(exc).__name__
     first = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
     return "error: " + re.sub(r"\s+", " ", first).strip()
+
+
+def override_syntax_error(args: list[str]) -> str | None:
+    """The ``error:`` line for the first command-line override Hydra's grammar cannot parse (e.g.
+    ``hydra.run.dir=runs/a=b``: an unquoted ``=`` in a value), or None. Flags are left to Hydra."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import OverrideParseException
+
+    parser = OverridesParser.create()
+    for arg in args:
+        if arg.startswith("-") or "=" not in arg:
+            continue
+        try:
+            parser.parse_overrides([arg])
+        except OverrideParseException as exc:
+            key, _, value = arg.partition("=")
+            reason = re.sub(r"\s+", " ", str(exc).strip().splitlines()[0])
+            return (f"error: {arg}: not a valid override ({reason}); quote a value that holds '=', spaces or brackets: "
+                    f"{key}='{value}'")
+    return None
+
+
+def overrides_checked(main: Callable[..., Any]) -> Callable[..., Any]:
+    """Wrap a ``@hydra.main`` entry point: an override Hydra cannot parse ends the command with one
+    ``error:`` line and exit status 2 (Hydra itself prints several lines and exits with 1)."""
+
+    @functools.wraps(main)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        line = override_syntax_error(sys.argv[1:])
+        if line is not None:
+            print(line, file=sys.stderr)
+            sys.exit(EXIT_BAD_INPUT)
+        return main(*args, **kwargs)
+
+    return wrapper

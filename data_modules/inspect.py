@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from data_modules.errors import EXIT_BAD_INPUT, error_line, find_cause
+from data_modules.errors import EXIT_BAD_INPUT, error_line, find_cause, overrides_checked
 from data_modules.frame import DatasetError
 from data_modules.sequence import SequenceDataset, SequenceView
 from data_modules.tables import write_tum_trajectory
@@ -232,6 +232,17 @@ def reader_warnings_on_stderr() -> Iterator[None]:
             lg.disabled = disabled
 
 
+def check_outputs(cfg) -> None:
+    """The output and count keys, before any data is read: ``sheet_out`` a .png path (the sheet is
+    a PNG; OpenCV would pick the format by the suffix, or fail), counts integers >= 1."""
+    if cfg.sheet_out and Path(str(cfg.sheet_out)).suffix.lower() != ".png":
+        raise DatasetError("sheet_out", f"{cfg.sheet_out!r}: must be a .png path (the contact sheet is a PNG)")
+    for key in ("sheet_frames", "max_sampled"):
+        value = cfg.get(key, 1)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise DatasetError(key, f"must be an integer >= 1, got {value!r}")
+
+
 def run(cfg) -> int:
     """The CLI body (Hydra-free apart from ``cfg``); returns the exit status."""
     import hydra.utils
@@ -240,11 +251,12 @@ def run(cfg) -> int:
     try:
         if cfg.format not in ("text", "json"):
             raise DatasetError("format", f"must be 'text' or 'json', got {cfg.format!r}")
+        check_outputs(cfg)
         with reader_warnings_on_stderr():
             ds = hydra.utils.instantiate(cfg.dataset)
             data = OmegaConf.to_container(cfg.data, resolve=True)
             view = SequenceView(ds, **data)
-            summary = summarize(view, int(cfg.get("max_sampled", 20)))
+            summary = summarize(view, cfg.get("max_sampled", 20))
             if cfg.gt_out:
                 ts, poses = gt_trajectory(view)
                 out = Path(str(cfg.gt_out))
@@ -274,6 +286,7 @@ def run(cfg) -> int:
 def _main() -> None:
     import hydra
 
+    @overrides_checked
     @hydra.main(config_path="../conf", config_name="inspect", version_base="1.3")
     def main(cfg) -> None:
         status = run(cfg)

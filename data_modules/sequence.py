@@ -66,6 +66,17 @@ class SequenceDataset(Dataset, abc.ABC):
         }
 
 
+def _is_count(value: object) -> bool:
+    """An integer >= 1 (not a bool, not 1.5)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1
+
+
+def _count_rule(value: object) -> str:
+    """The rule a bad count broke: ">= 1" for an integer below it, "an integer >= 1" otherwise."""
+    integer = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    return ">= 1" if integer else "an integer >= 1"
+
+
 def resize_frame(frame: Frame, width: int, height: int) -> Frame:
     """Resize a frame: area-averaged colour, nearest-neighbour depth and mask (no mixed depths at edges)."""
     if (frame.width, frame.height) == (width, height):
@@ -90,10 +101,13 @@ class SequenceView(SequenceDataset):
         depth_min: float = 0.0,
         depth_max: float | None = None,
     ) -> None:
-        if stride < 1:
-            raise DatasetError("data.stride", f"must be >= 1, got {stride}")
-        if max_frames is not None and max_frames < 1:
-            raise DatasetError("data.max_frames", f"must be >= 1 or null, got {max_frames}")
+        if not _is_count(stride):
+            raise DatasetError("data.stride", f"must be {_count_rule(stride)}, got {stride!r}")
+        if max_frames is not None and not _is_count(max_frames):
+            raise DatasetError("data.max_frames", f"must be {_count_rule(max_frames)} or null, got {max_frames!r}")
+        for key, value in (("depth_min", depth_min), ("depth_max", 1.0 if depth_max is None else depth_max)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+                raise DatasetError(f"data.{key}", f"must be a finite number >= 0, got {value!r}")
         if depth_max is not None and depth_max <= depth_min:
             raise DatasetError("data.depth_max", f"must exceed depth_min={depth_min}, got {depth_max}")
         self.base = base
@@ -103,7 +117,7 @@ class SequenceView(SequenceDataset):
         self.has_gt_poses = base.has_gt_poses
         self.has_masks = base.has_masks
         if resize is not None:
-            if len(resize) != 2 or min(resize) <= 0:
+            if isinstance(resize, (str, bytes)) or len(resize) != 2 or not all(_is_count(v) for v in resize):
                 raise DatasetError("data.resize", f"must be [width, height], got {list(resize)}")
             self.size = (int(resize[0]), int(resize[1]))
             self.intrinsics = base.intrinsics.resized(*self.size)

@@ -24,6 +24,7 @@ keeps the 1:1 colour/depth pixel registration. Pixels that map from outside the 
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 
 import cv2
@@ -88,6 +89,18 @@ def _list_file(root: Path, name: str) -> tuple[np.ndarray, list[Path], list[int]
     return ts, files, [r.lineno for r in rows], path
 
 
+def _check_numbers(**values: object) -> None:
+    """Each ``dataset.<key>`` a finite number >= 0 (``depth_scale`` > 0; ``gt_max_gap`` may be
+    null), or a one-line DatasetError."""
+    for key, value in values.items():
+        if value is None and key == "gt_max_gap":
+            continue
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        strict = key == "depth_scale"
+        if not ok or value < 0 or (strict and value == 0):
+            raise DatasetError(f"dataset.{key}", f"must be a finite number {'> 0' if strict else '>= 0'}, got {value!r}")
+
+
 class TUMSequence(SequenceDataset):
     """A TUM RGB-D sequence folder (``rgbd_dataset_freiburgX_<name>``).
 
@@ -128,6 +141,7 @@ class TUMSequence(SequenceDataset):
     ) -> None:
         self.root = require_dir(root, f"{type(self).__name__} sequence folder")
         self.name = name or self.root.name
+        _check_numbers(max_time_diff=max_time_diff, gt_max_gap=gt_max_gap, depth_scale=depth_scale)
         camera = camera or self.default_camera
         if camera != "custom" and camera not in CAMERAS:
             raise DatasetError("dataset.camera", f"unknown camera {camera!r} (use {', '.join(CAMERAS)} or custom)")
@@ -142,8 +156,6 @@ class TUMSequence(SequenceDataset):
         self.camera = camera
         self.distortion = np.array(dist, dtype=np.float64)
         self.depth_scale = float(depth_scale)
-        if not self.depth_scale > 0:
-            raise DatasetError("dataset.depth_scale", f"must be > 0, got {depth_scale}")
 
         rgb_ts, rgb_files, rgb_lines, rgb_list = _list_file(self.root, "rgb.txt")
         depth_ts, depth_files, depth_lines, depth_list = _list_file(self.root, "depth.txt")

@@ -36,7 +36,8 @@ sys.path.insert(0, str(REPO / "tests" / "data_modules"))
 from fixtures import make_cofusion, make_folder, make_klg, make_tum, random_pose, write_exr, write_png16  # noqa: E402
 
 SMOKE = ("experiment=smoke", "dataset.width=80", "dataset.height=60", "dataset.cache_dir=null")
-MODULES = {"train": "tivne.train", "inspect": "data_modules.inspect", "mesh": "tivne.mesh", "evaluate": "tivne.evaluate", "make_masks": "tivne.make_masks"}
+MODULES = {"train": "tivne.train", "inspect": "data_modules.inspect", "mesh": "tivne.mesh", "evaluate": "tivne.evaluate", "make_masks": "tivne.make_masks",
+           "report": "tivne.report", "collect": "tivne.collect"}
 
 
 @dataclass(frozen=True)
@@ -172,6 +173,49 @@ def empty_dir(name: str) -> Callable[[Path], None]:
     return lambda d: (d / name).mkdir()
 
 
+def saved_config(change: Callable[[dict, Path], None], complete: bool = True) -> Callable[[Path], None]:
+    """A finished run whose .hydra/config.yaml is then changed by ``change(config, d)``, next to
+    ``d/precious.txt``: the file a hostile config targets (the table checks it is left as it was)."""
+    import yaml
+
+    def edit(run: Path) -> None:
+        (run.parent / "precious.txt").write_text("keep me\n")
+        path = run / ".hydra" / "config.yaml"
+        config = yaml.safe_load(path.read_text())
+        change(config, run.parent)
+        path.write_text(yaml.safe_dump(config))
+    return run_then(edit, complete)
+
+
+def open_for_writing(config: dict, d: Path) -> None:
+    config["dataset"] = {"_target_": "builtins.open", "_args_": [str(d / "precious.txt"), "w"]}
+
+
+def nested_open(config: dict, d: Path) -> None:
+    config["dataset"] = {"_target_": "data_modules.folder.FolderSequence", "root": str(d),
+                         "intrinsics": {"_target_": "builtins.open", "_args_": [str(d / "precious.txt"), "w"]}}
+
+
+def fractional_stride(config: dict, d: Path) -> None:
+    config["data"]["stride"] = 1.5
+
+
+HOLDERS: list[subprocess.Popen] = []  # processes holding a run folder's lock, ended after the cases
+
+
+def held_by_another_run(d: Path) -> None:
+    """``d/run`` locked by a live process (the run folder of a run still going)."""
+    (d / "run").mkdir()
+    hold = "import sys, time; from tivne.runlock import acquire; acquire(sys.argv[1]); print('held', flush=True); time.sleep(600)"
+    proc = subprocess.Popen([sys.executable, "-c", hold, str(d / "run")], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    HOLDERS.append(proc)
+    assert proc.stdout.readline().strip() == "held"
+
+
+def sweep_dir(d: Path) -> None:
+    (d / "sweep").mkdir()
+
+
 # ------------------------------------------------------------------------------------- cases
 TRAIN_RUN = ("hydra.run.dir={d}/run",)
 KLG = ("dataset=teddy", "dataset.root={d}/log.klg", "dataset.width=32", "dataset.height=24", "dataset.cx=15.5", "dataset.cy=11.5")
@@ -193,7 +237,26 @@ CASES: tuple[Case, ...] = (
     Case("resume and overwrite", "train", (*SMOKE, "resume=true", "overwrite=true", *TRAIN_RUN), "resume=true and overwrite=true: choose one"),
     Case("CUDA on a CPU-only torch", "train", (*SMOKE, "trainer.accelerator=cuda", *TRAIN_RUN), "CUDA is not available"),
     Case("mesh time outside the sequence", "train", (*SMOKE, "mesh.times=[99]", *TRAIN_RUN), "outside the recorded range"),
-    Case("stride 0", "train", (*SMOKE, "data.stride=0", *TRAIN_RUN), "data.stride: must be >= 1"),
+    Case("stride 0", "train", (*SMOKE, "data.stride=0", *TRAIN_RUN), "data.stride=0: must be >= 1"),
+    Case("fractional stride", "train", (*SMOKE, "data.stride=1.5", *TRAIN_RUN), "data.stride=1.5: must be an integer >= 1"),
+    Case("NaN depth_max", "train", (*SMOKE, "data.depth_max=nan", *TRAIN_RUN), "data.depth_max=nan: must be a finite number"),
+    Case("resize with one number", "train", (*SMOKE, "data.resize=[80]", *TRAIN_RUN), "data.resize=[80]: must be [width, height]"),
+    Case("depth_max below depth_min", "train", (*SMOKE, "data.depth_min=2", "data.depth_max=1", *TRAIN_RUN), "must be > data.depth_min"),
+    Case("unknown data key", "train", (*SMOKE, "+data.strides=2", *TRAIN_RUN), "data.strides: unknown setting"),
+    Case("unknown added key", "train", (*SMOKE, "+foo=bar", *TRAIN_RUN), "foo: unknown setting"),
+    Case("misspelt resume", "train", (*SMOKE, "+resmue=true", *TRAIN_RUN), "resmue: unknown setting (did you mean resume?"),
+    Case("unparsable override", "train", (*SMOKE, "hydra.run.dir={d}/runs/a=b"), "not a valid override"),
+    Case("dataset target not a reader", "train", (*SMOKE, "dataset._target_=builtins.open", *TRAIN_RUN), "dataset._target_='builtins.open': not one of"),
+    Case("dataset _args_", "train", (*SMOKE, "+dataset._args_=[x]", *TRAIN_RUN), "dataset._args_: not allowed"),
+    Case("mask provider not TivNe's", "train", (*SMOKE, "masks.provider._target_=os.system", *TRAIN_RUN), "masks.provider._target_='os.system'"),
+    Case("negative max_time_diff", "train", ("experiment=smoke", "dataset=tum", "dataset.root={d}/seq", "dataset.max_time_diff=-1", *TRAIN_RUN),
+         "dataset.max_time_diff=-1.0: must be >= 0"),
+    Case("unknown reader argument", "train", (*SMOKE, "+dataset.speed=2", *TRAIN_RUN), "dataset.speed: unknown setting"),
+    Case("reader argument not a number", "train", (*SMOKE, "dataset.num_frames=abc", *TRAIN_RUN), "dataset.num_frames='abc': must be an integer"),
+    Case("depth_scale 0", "train", ("experiment=smoke", *FOLDER, "dataset.depth_scale=0", *TRAIN_RUN), "dataset.depth_scale=0.0: must be > 0",
+         setup=folder()),
+    Case("frames too large", "train", (*SMOKE, "data.resize=[8000,6000]", *TRAIN_RUN), "frames of 8000x6000 (48.0 Mpx)"),
+    Case("map beyond the memory", "train", (*SMOKE, "field.max_capacity=1000000000000", *TRAIN_RUN), "field.max_capacity: the run needs about"),
     Case("zero frames", "train", (*SMOKE, "dataset.num_frames=0", *TRAIN_RUN), "num_frames"),
     # train: data
     Case("dataset root not given", "train", ("experiment=smoke", "dataset=folder", *TRAIN_RUN), "missing mandatory config value 'dataset.root'"),
@@ -217,6 +280,13 @@ CASES: tuple[Case, ...] = (
     Case("full disk at the checkpoint", "train", (*SMOKE, *TRAIN_RUN), "run/checkpoints/slam.pt: No space left on device", patch="torch.save"),
     Case("read-only run dir", "train", (*SMOKE, *TRAIN_RUN), READ_ONLY, setup=empty_dir("run"), read_only=True),
     Case("new run dir in a read-only folder", "train", (*SMOKE, "hydra.run.dir={d}/run/new"), READ_ONLY, setup=empty_dir("run"), read_only=True),
+    Case("resume an interrupted run without a checkpoint", "train", (*SMOKE, "resume=true", *TRAIN_RUN), "overwrite=true starts it again from frame 0",
+         setup=run_then(remove("checkpoints"), complete=False)),
+    Case("restart an interrupted run without a checkpoint", "train", (*SMOKE, *TRAIN_RUN), "no checkpoint to resume from; overwrite=true",
+         setup=run_then(remove("checkpoints"), complete=False)),
+    Case("run dir held by another run", "train", (*SMOKE, *TRAIN_RUN), "is writing into this folder", setup=held_by_another_run),
+    Case("resume with a hostile run config", "train", (*SMOKE, "resume=true", *TRAIN_RUN), "resume=true with a different config",
+         setup=saved_config(open_for_writing, complete=False)),
     # inspect
     Case("inspect: unknown format", "inspect", (*TINY, "format=xml"), "format: must be 'text' or 'json'"),
     Case("inspect: root not given", "inspect", ("dataset=folder",), "missing mandatory config value 'dataset.root'"),
@@ -229,6 +299,13 @@ CASES: tuple[Case, ...] = (
     Case("inspect: GT out into a read-only folder", "inspect", (*TINY, "gt_out={d}/run/gt.txt"), tuple("run/gt.txt: " + m for m in READ_ONLY_ERRORS),
          setup=empty_dir("run"), read_only=True),
     Case("inspect: max_frames 0", "inspect", (*TINY, "data.max_frames=0"), "data.max_frames: must be >= 1"),
+    Case("inspect: sheet not a PNG", "inspect", (*TINY, "sheet_out={d}/sheet.xyz"), "sheet_out: 'sheet.xyz': must be a .png path"),
+    Case("inspect: fractional stride", "inspect", (*TINY, "data.stride=1.5"), "data.stride: must be an integer >= 1, got 1.5"),
+    Case("inspect: NaN depth_max", "inspect", (*TINY, "data.depth_max=nan"), "data.depth_max: must be a finite number"),
+    Case("inspect: negative max_time_diff", "inspect", ("dataset=tum", "dataset.root={d}/seq", "dataset.max_time_diff=-1"),
+         "dataset.max_time_diff: must be a finite number >= 0", setup=tum_with(lambda seq: None)),
+    Case("inspect: sheet_frames 0", "inspect", (*TINY, "sheet_frames=0"), "sheet_frames: must be an integer >= 1"),
+    Case("inspect: unparsable override", "inspect", (*TINY, "sheet_out={d}/a=b.png"), "not a valid override"),
     # mesh
     Case("mesh: run_dir not given", "mesh", (), "missing mandatory config value 'run_dir'"),
     Case("mesh: run dir missing", "mesh", MESH_RUN, "run: run directory not found"),
@@ -241,6 +318,8 @@ CASES: tuple[Case, ...] = (
     Case("mesh: every 0", "mesh", (*MESH_RUN, "every=0"), "every", setup=interrupted_run),
     Case("mesh: full disk", "mesh", MESH_RUN, "No space left on device", setup=run_then(remove("meshes")), patch="write"),
     Case("mesh: read-only run dir", "mesh", MESH_RUN, READ_ONLY, setup=run_then(remove("meshes")), read_only=True),
+    Case("mesh: unknown added key", "mesh", (*MESH_RUN, "+evry=2"), "evry: unknown setting (did you mean every?", setup=interrupted_run),
+    Case("mesh: unparsable override", "mesh", (*MESH_RUN, "device=cuda=1"), "not a valid override", setup=interrupted_run),
     # evaluate
     Case("evaluate: read-only run dir", "evaluate", EVAL_RUN, READ_ONLY,
          setup=interrupted_run, read_only=True),
@@ -252,6 +331,24 @@ CASES: tuple[Case, ...] = (
     Case("evaluate: time outside the run", "evaluate", (*EVAL_RUN, "mesh.times=[99]"), "outside the recorded range", setup=interrupted_run),
     Case("evaluate: unknown frame", "evaluate", (*EVAL_RUN, "frame=foo"), "frame='foo': must be one of", setup=interrupted_run),
     Case("evaluate: negative threshold", "evaluate", (*EVAL_RUN, "settings.threshold_m=-1"), "settings.threshold_m=-1", setup=interrupted_run),
+    Case("evaluate: hostile run config", "evaluate", EVAL_RUN, "dataset._target_='builtins.open': not one of TivNe's own",
+         setup=saved_config(open_for_writing)),
+    Case("evaluate: hostile target inside a reader", "evaluate", EVAL_RUN, "dataset.intrinsics._target_='builtins.open'",
+         setup=saved_config(nested_open)),
+    Case("evaluate: run config with a fractional stride", "evaluate", EVAL_RUN, "data.stride=1.5", setup=saved_config(fractional_stride)),
+    Case("evaluate: unknown added key", "evaluate", (*EVAL_RUN, "+frames=ate"), "frames: unknown setting (did you mean frame?",
+         setup=interrupted_run),
+    # report
+    Case("report: hostile run config", "report", EVAL_RUN, "dataset._target_='builtins.open': not one of TivNe's own",
+         setup=saved_config(open_for_writing)),
+    Case("report: hostile target inside a reader", "report", EVAL_RUN, "dataset.intrinsics._target_='builtins.open'", setup=saved_config(nested_open)),
+    Case("report: run dir missing", "report", EVAL_RUN, "run: run directory not found"),
+    Case("report: negative frames", "report", (*EVAL_RUN, "report.frames=-1"), "report.frames=-1: must be >= 0", setup=interrupted_run),
+    Case("report: unknown added key", "report", (*EVAL_RUN, "+reprot.frames=2"), "reprot: unknown setting (did you mean report?", setup=interrupted_run),
+    Case("report: unparsable override", "report", (*EVAL_RUN, "report.frames=a=b"), "not a valid override", setup=interrupted_run),
+    # collect
+    Case("collect: folder missing", "collect", ("{d}/none",), "none: no such run or sweep directory"),
+    Case("collect: no runs in the folder", "collect", ("{d}/sweep",), "no run directories", setup=sweep_dir),
     # make_masks
     Case("make_masks: provider needs poses", "make_masks", (*TINY, "masks=geometric", "out={d}/masks"), "needs the tracked pose"),
     Case("make_masks: out not given", "make_masks", (*TINY, "masks=none"), "missing mandatory config value 'out'"),
@@ -260,6 +357,10 @@ CASES: tuple[Case, ...] = (
          setup=empty_dir("run"), read_only=True),
     Case("make_masks: Mask R-CNN weights missing", "make_masks", (*TINY, "masks=maskrcnn", "masks.provider.weights={d}/none.pth", "out={d}/masks"), "none.pth"),
     Case("make_masks: dataset root missing", "make_masks", ("dataset=folder", "dataset.root={d}/seq", "masks=none", "out={d}/masks"), "seq"),
+    Case("make_masks: fractional stride", "make_masks", (*TINY, "masks=none", "data.stride=1.5", "out={d}/masks"), "data.stride=1.5"),
+    Case("make_masks: provider not TivNe's", "make_masks", (*TINY, "masks.provider._target_=builtins.exec", "out={d}/masks"),
+         "masks.provider._target_='builtins.exec'"),
+    Case("make_masks: unknown added key", "make_masks", (*TINY, "masks=none", "+ovewrite=true", "out={d}/masks"), "ovewrite: unknown setting"),
 )
 
 
@@ -383,7 +484,12 @@ def run_case(case: Case, base: Path) -> dict:
 def run_cases(names: list[str], base: Path) -> list[dict]:
     TEMPLATE["base"] = base
     by_name = {c.name: c for c in CASES}
-    return [run_case(by_name[n], base) for n in names]
+    try:
+        return [run_case(by_name[n], base) for n in names]
+    finally:
+        for proc in HOLDERS:
+            proc.kill()
+            proc.wait()
 
 
 def run_all(base: Path, workers: int = 2) -> dict[str, dict]:
@@ -415,7 +521,7 @@ def results(tmp_path_factory) -> dict[str, dict]:
 
 
 def test_there_are_enough_cases_over_every_command():
-    assert len(CASES) >= 40 and len({c.name for c in CASES}) == len(CASES)
+    assert len(CASES) >= 90 and len({c.name for c in CASES}) == len(CASES)
     assert {c.cli for c in CASES} == set(MODULES)
 
 

@@ -27,10 +27,12 @@ from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from data_modules.errors import BAD_INPUT as DATA_BAD_INPUT
 from data_modules.errors import EXIT_BAD_INPUT, error_line, find_cause
 from data_modules.sequence import SequenceView
+from tivne import runlock
 from tivne.config import (
     SECTIONS,
     ConfigError,
@@ -41,7 +43,9 @@ from tivne.config import (
     RunDirConfig,
     default_tree,
 )
+from tivne.inputs import RUN_KEYS, check_known_keys, check_run_inputs, check_stream_inputs  # noqa: F401 (the commands use them through cli)
 from tivne.masks.settings import default_nodes
+from tivne.readers import DataConfig, check_dataset_node
 from tivne.slam.checkpoint import check_resumable
 from tivne.slam.outputs import RunDir, check_run_dir
 from tivne.utils import RunFailed
@@ -105,7 +109,9 @@ def threads_per_job(launcher: Mapping[str, Any], cores: int) -> int | None:
 
 def run_sequence(run_dir: str | Path) -> tuple[SequenceView, RenderConfig]:
     """The sequence as a run streamed it and the run's render settings, rebuilt from its own
-    run_dir/.hydra/config.yaml."""
+    run_dir/.hydra/config.yaml -- data, never code: the dataset node must name one of TivNe's
+    readers with checked arguments (:func:`tivne.readers.check_dataset_node`) before anything is
+    instantiated, and ``data`` / ``render`` are checked sections."""
     root = Path(run_dir)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: run directory not found")
@@ -113,9 +119,27 @@ def run_sequence(run_dir: str | Path) -> tuple[SequenceView, RenderConfig]:
     if not config.is_file():
         raise FileNotFoundError(f"{config}: run config not found")
     cfg = OmegaConf.load(config)
-    data = OmegaConf.to_container(cfg.data, resolve=True) if "data" in cfg else {}
-    render = RenderConfig.from_mapping(OmegaConf.to_container(cfg.render, resolve=True) if "render" in cfg else {})
-    return SequenceView(instantiate(cfg.dataset), **data), render
+    if "dataset" not in cfg:
+        raise ConfigError(f"{config}: no dataset node; not a config written by tivne.train")
+    dataset, data, render = (saved_section(cfg, config, key) for key in ("dataset", "data", "render"))
+    check_dataset_node(dataset)
+    view = DataConfig.from_mapping(data).view_kwargs()
+    return SequenceView(instantiate(cfg.dataset), **view), RenderConfig.from_mapping(render)
+
+
+# Top-level keys of a training config besides the checked sections (tivne.config.SECTIONS).
+def saved_section(cfg: DictConfig, config: Path, key: str) -> dict[str, Any]:
+    """``cfg[key]`` of a saved run config as plain values ({} when absent), refused in one line
+    naming the file when it is not a mapping or does not resolve."""
+    if key not in cfg:
+        return {}
+    node = cfg[key]
+    if not isinstance(node, DictConfig):
+        raise ConfigError(f"{config}: {key}={node!r}: must be a mapping")
+    try:
+        return OmegaConf.to_container(node, resolve=True, throw_on_missing=False)  # type: ignore[return-value]
+    except OmegaConfBaseException as exc:
+        raise ConfigError(f"{config}: {key}: " + str(exc).splitlines()[0]) from None
 
 
 def bad_input_cause(exc: BaseException) -> BaseException | None:
@@ -169,6 +193,7 @@ class RunDirGuard(Callback):
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         try:
             run = RunDir(OmegaConf.select(config, "hydra.run.dir"))
+            runlock.check_free(run.root)  # a live writer is named first, whatever the folder holds
             options = RunDirConfig.from_mapping({key: config.get(key, False) for key in ("resume", "overwrite")})
             saved = current = None
             if options.resume and run.config.is_file():
@@ -177,9 +202,18 @@ class RunDirGuard(Callback):
             check_run_dir(run, options.resume, options.overwrite, saved, current)
             if options.resume:
                 check_resumable(run.checkpoint)
+            runlock.acquire(run.root)  # one writer per folder, before Hydra writes .hydra/ there
+            try:  # again under the lock: a run that held it may have written results meanwhile
+                check_run_dir(run, options.resume, options.overwrite, saved, current)
+            except BaseException:
+                runlock.release(run.root)
+                raise
         except Exception as exc:  # noqa: BLE001 -- bad input becomes one line; anything else is a bug
             report_bad_input(exc)
             raise
+
+    def on_run_end(self, config: DictConfig, **kwargs: Any) -> None:
+        runlock.release(OmegaConf.select(config, "hydra.run.dir"))
 
 
 def mesh_settings(node: DictConfig) -> MeshConfig:

@@ -4,7 +4,9 @@ A row per run found at or under the DIRs (a multirun / Optuna sweep dir, an outp
 run dirs), the overridden keys as columns (from each run's .hydra/overrides.yaml; keys every run
 shares go in a ``common:`` line unless ``--all-keys``), its status (complete, incomplete, failed) and
 its metrics (``--metrics`` adds metrics.json keys or patterns, e.g. ``'cube_*_last_m'``).
-``--out FILE`` writes the table there as well. Errors are one ``error: ...`` line, exit status 2.
+``--out FILE`` writes the table there as well. Nothing it reads is changed: a metrics.json that
+cannot be read, or holds values of the wrong type, makes its row ``unreadable`` with the reason in a
+``problem`` column and on stderr. Errors are one ``error: ...`` line, exit status 2.
 """
 
 from __future__ import annotations
@@ -37,6 +39,9 @@ def main(argv: list[str] | None = None) -> str:
     extra = [m.strip() for m in args.metrics.split(",") if m.strip()]
     root = Path(os.path.commonpath([p.resolve() for p in args.dirs]))
     rows = [read_row(p.resolve()) for p in run_dirs]
+    for row in rows:  # reported, never fixed: collect changes nothing it reads
+        if row.problem:
+            print(f"warning: {row.problem}", file=sys.stderr)
     text = render_table(results_table(rows, (*DEFAULT_METRICS, *extra), args.all_keys, root), args.format)
     if args.out is not None:
         args.out.write_text(text)

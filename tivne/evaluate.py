@@ -18,7 +18,8 @@ import sys
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from tivne.cli import mesh_settings, one_line_errors, register_defaults, run_sequence
+from data_modules.errors import overrides_checked
+from tivne.cli import check_known_keys, mesh_settings, one_line_errors, register_defaults, run_sequence
 from tivne.config import MeshEvalSettings
 from tivne.evaluation import evaluate_run
 from tivne.slam.outputs import RunDir
@@ -26,9 +27,11 @@ from tivne.slam.outputs import RunDir
 register_defaults()
 
 
+@overrides_checked
 @hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> None:
+    check_known_keys(cfg, ("run_dir", "frame", "prefer_mesh_files", "mesh", "settings"))
     mesh = mesh_settings(cfg.mesh)
     settings = MeshEvalSettings.from_mapping(OmegaConf.to_container(cfg.settings, resolve=True))
     run = RunDir(cfg.run_dir)

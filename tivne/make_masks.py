@@ -14,10 +14,11 @@ import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from data_modules.errors import overrides_checked
 from data_modules.frame import DatasetError
 from data_modules.io import read_mask_png, write_mask_png
 from data_modules.sequence import SequenceView
-from tivne.cli import one_line_errors
+from tivne.cli import check_known_keys, check_stream_inputs, one_line_errors
 from tivne.masks.base import MaskProvider
 from tivne.masks.folder import mask_file_name
 from tivne.masks.settings import build_provider
@@ -59,12 +60,15 @@ def make_masks(provider: MaskProvider, view, out: str | Path, overwrite: bool = 
 
 def run(cfg: DictConfig) -> dict[str, int]:
     out = cfg.out  # raises MissingMandatoryValue when not given
+    check_known_keys(cfg, ("paths", "data", "dataset", "masks", "out", "overwrite", "progress"))
+    data = check_stream_inputs(cfg)
     dataset = instantiate(cfg.dataset)
-    view = SequenceView(dataset, **OmegaConf.to_container(cfg.data, resolve=True))
+    view = SequenceView(dataset, **data.view_kwargs())
     provider = build_provider(OmegaConf.to_container(cfg.masks.provider, resolve=True))
     return make_masks(provider, view, out, bool(cfg.overwrite), bool(cfg.progress))
 
 
+@overrides_checked
 @hydra.main(config_path="../conf", config_name="make_masks", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> None:

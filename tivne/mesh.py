@@ -18,7 +18,8 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
-from tivne.cli import mesh_settings, one_line_errors, register_defaults
+from data_modules.errors import overrides_checked
+from tivne.cli import check_known_keys, mesh_settings, one_line_errors, register_defaults
 from tivne.config import MeshConfig
 from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
 from tivne.slam.checkpoint import camera_centres, load_checkpoint
@@ -54,9 +55,11 @@ def mesh_run(
     return written
 
 
+@overrides_checked
 @hydra.main(config_path="../conf", config_name="mesh", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> None:
+    check_known_keys(cfg, ("run_dir", "every", "device", "mesh"))
     written = mesh_run(cfg.run_dir, mesh_settings(cfg.mesh), cfg.every, cfg.device)
     for ts, n_verts, n_faces, path in written:
         if n_faces == 0:

@@ -13,8 +13,9 @@ import sys
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from data_modules.errors import overrides_checked
 from data_modules.frame import DatasetError
-from tivne.cli import error_line, one_line_errors, register_defaults, run_sequence
+from tivne.cli import check_known_keys, error_line, one_line_errors, register_defaults, run_sequence
 from tivne.config import RenderConfig, ReportConfig
 from tivne.reporting.page import report_summary, write_report
 from tivne.slam.outputs import RunDir
@@ -22,9 +23,11 @@ from tivne.slam.outputs import RunDir
 register_defaults()
 
 
+@overrides_checked
 @hydra.main(config_path="../conf", config_name="report", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> None:
+    check_known_keys(cfg, ("run_dir", "report"))
     settings = ReportConfig.from_mapping(OmegaConf.to_container(cfg.report, resolve=True))
     run = RunDir(cfg.run_dir)
     if not run.root.is_dir():

@@ -19,9 +19,11 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from data_modules.errors import overrides_checked
 from tivne.cli import in_multirun, one_line_errors, register_defaults
 from tivne.config import ObjectiveConfig
 from tivne.evaluation.objective import objective_value
+from tivne.slam.outputs import RunDir
 from tivne.slam.run import plain, run
 from tivne.utils import RunInterrupted
 
@@ -32,6 +34,8 @@ register_defaults()
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
 
 
+@overrides_checked
+@overrides_checked
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> float | None:
@@ -39,7 +43,8 @@ def main(cfg: DictConfig) -> float | None:
     try:
         metrics = run(cfg, run_dir)
     except RunInterrupted as exc:
-        print(f"interrupted by {exc}: partial results (complete: false) in {run_dir}", file=sys.stderr)
+        way = "resume=true continues it" if RunDir(run_dir).checkpoint.is_file() else "no checkpoint was written; overwrite=true starts it again"
+        print(f"interrupted by {exc}: partial results (complete: false) in {run_dir}; {way}", file=sys.stderr)
         sys.exit(exc.exit_code)
     keys = ["frames", "s_per_frame", "track_ms_per_iter", "map_ms_per_iter", "ate_rmse_m", "peak_rss_mb"]
     print(json.dumps({k: metrics.get(k) for k in keys}))

@@ -10,6 +10,7 @@ import threading
 from collections.abc import Iterator
 
 import torch
+from lightning.pytorch import Callback
 
 from tivne.settings import ConfigError
 
@@ -82,11 +83,37 @@ def interrupt_signals(signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)
         raise RunInterrupted(signum)
 
     previous = {s: signal.signal(s, handler) for s in signums}
+    _installed.update({s: handler for s in signums})
     try:
         yield
     finally:
         for s, h in previous.items():
+            _installed.pop(s, None)
             signal.signal(s, h)
+
+
+# The handlers :func:`interrupt_signals` installed, while its block runs.
+_installed: dict[int, object] = {}
+
+
+def reinstall_interrupt_signals() -> list[int]:
+    """Put :func:`interrupt_signals`' handlers back in place of whatever replaced them (Lightning's
+    ``Trainer.fit`` wraps SIGTERM in its own handler, which flags the trainer before ours runs and
+    ends the fit loop with its own SystemExit); returns the signals re-installed. Main thread only."""
+    if threading.current_thread() is not threading.main_thread():
+        return []
+    for signum, handler in _installed.items():
+        signal.signal(signum, handler)
+    return list(_installed)
+
+
+class InterruptSignalsFirst(Callback):
+    """Lightning callback: at ``on_train_start`` -- after ``Trainer.fit`` installed its SIGTERM
+    handler, before the first frame -- TivNe's handlers win again (:func:`reinstall_interrupt_signals`);
+    Lightning restores them itself when fit ends."""
+
+    def on_train_start(self, trainer, pl_module) -> None:
+        reinstall_interrupt_signals()
 
 
 @contextlib.contextmanager

@@ -97,3 +97,29 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main([str(tmp_path)])
     assert exc.value.code == 2 and "no run directories" in capsys.readouterr().err
+
+
+def test_collect_changes_nothing_and_reports_unreadable_or_mistyped_metrics(tmp_path, capsys):
+    import hashlib
+
+    sweep = tmp_path / "sweep"
+    make_run(sweep / "0_good", ["field=tivne"], {"complete": True, "frames": 5, "ate_rmse_m": 0.01})
+    make_run(sweep / "1_many", ["field=static"], {"complete": True, "frames": "many", "ate_rmse_m": 0.02})
+    make_run(sweep / "2_bool", ["field=none"], {"complete": "yes", "frames": 5, "ate_rmse_m": True})
+    for i, garbage in enumerate((b"{not json", b"[1, 2]", b"\xff\xfe")):
+        run = make_run(sweep / f"{3 + i}_bad", [f"seed={i}"], None)
+        (run / "metrics.json").write_bytes(garbage)
+    before = {p: hashlib.sha1(p.read_bytes()).hexdigest() for p in sweep.rglob("*") if p.is_file()}
+    text = main([str(sweep), "--format", "json"])
+    after = {p: hashlib.sha1(p.read_bytes()).hexdigest() for p in sweep.rglob("*") if p.is_file()}
+    assert after == before  # byte-identical, nothing renamed or added
+    runs = {r["run"]: r for r in json.loads(text)["runs"]}
+    assert runs["0_good"]["status"] == "complete" and runs["0_good"]["problem"] is None
+    assert runs["1_many"]["status"] == "unreadable" and runs["1_many"]["frames"] is None
+    assert "frames='many': must be a non-negative integer" in runs["1_many"]["problem"]
+    assert runs["1_many"]["ate_rmse_m"] == 0.02  # the valid values are still shown
+    assert runs["2_bool"]["status"] == "unreadable" and "complete='yes': must be true or false" in runs["2_bool"]["problem"]
+    for i in range(3):
+        assert runs[f"{3 + i}_bad"]["status"] == "unreadable" and "unreadable" in runs[f"{3 + i}_bad"]["problem"]
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 5 and all("metrics.json" in w for w in warnings)

@@ -70,3 +70,56 @@ def test_require_device():
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match="device=gpu: CUDA is not available"):
             require_device("gpu")
+
+
+def fit_and_signal(callbacks: list) -> tuple[object, BaseException | None]:
+    """A one-step Lightning fit under interrupt_signals whose step sends this process SIGTERM."""
+    import signal
+
+    import lightning as L
+    import torch
+
+    from tivne.utils import RunInterrupted, interrupt_signals
+
+    class Step(L.LightningModule):
+        def __init__(self) -> None:
+            super().__init__()
+            self.w = torch.nn.Parameter(torch.zeros(1))
+            self.handler_in_step = None
+
+        def training_step(self, batch, _):
+            self.handler_in_step = signal.getsignal(signal.SIGTERM)
+            os.kill(os.getpid(), signal.SIGTERM)
+            return (self.w - 1).pow(2).sum()
+
+        def configure_optimizers(self):
+            return torch.optim.SGD(self.parameters(), lr=0.1)
+
+        def train_dataloader(self):
+            return torch.utils.data.DataLoader(torch.zeros(2, 1), batch_size=1)
+
+    trainer = L.Trainer(max_epochs=1, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                        enable_model_summary=False, accelerator="cpu", callbacks=callbacks)
+    raised = None
+    try:
+        with interrupt_signals():
+            trainer.fit(Step())
+    except RunInterrupted as exc:
+        raised = exc
+    return trainer, raised
+
+
+def test_tivne_signal_handlers_win_over_lightnings_sigterm_handler():
+    """Lightning's fit wraps SIGTERM in its own handler (it flags the trainer and ends the fit loop
+    with its SIGTERMException); with InterruptSignalsFirst TivNe's handler alone runs from the first step."""
+    import signal
+
+    from tivne.utils import InterruptSignalsFirst
+
+    before = signal.getsignal(signal.SIGTERM)
+    trainer, raised = fit_and_signal([InterruptSignalsFirst()])
+    assert raised is not None and raised.exit_code == 143
+    assert trainer.received_sigterm is False  # Lightning's handler never saw the signal
+    assert signal.getsignal(signal.SIGTERM) == before  # every handler is restored afterwards
+    trainer, _ = fit_and_signal([])
+    assert trainer.received_sigterm is True  # without it, Lightning's handler runs first

@@ -40,9 +40,12 @@ class RunRow:
     path: Path
     overrides: dict[str, str]
     metrics: dict[str, Any]
+    problem: str | None = None  # why metrics.json / overrides.yaml could not be (wholly) read
 
     @property
     def status(self) -> str:
+        if self.problem is not None:
+            return "unreadable"
         if not self.metrics or self.metrics.get("error"):
             return "failed"
         return "complete" if self.metrics.get("complete") is True else "incomplete"
@@ -95,8 +98,55 @@ def read_overrides(run_dir: Path) -> dict[str, str]:
     return out
 
 
+# metrics.json keys collect shows, by the type their value must have (null is allowed for all).
+COUNT_KEYS = ("frames", "sequence_frames", "ate_frames", "threads")
+TEXT_KEYS = ("error",)
+
+
+def check_metric(key: str, value: Any) -> str | None:
+    """Why ``value`` is not a valid value of metrics.json's ``key`` (None when it is)."""
+    if value is None:
+        return None
+    if key == "complete":
+        return None if isinstance(value, bool) else "must be true or false"
+    if key in TEXT_KEYS or key.endswith("_reason"):
+        return None if isinstance(value, str) else "must be a string"
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if key in COUNT_KEYS and not (number and math.isfinite(value) and float(value).is_integer() and value >= 0):
+        return "must be a non-negative integer"
+    if key in DEFAULT_METRICS and not number:
+        return "must be a number"
+    return None
+
+
+def read_metrics_file(path: Path) -> tuple[dict[str, Any], str | None]:
+    """metrics.json's content and the first problem with it, reading only: ({}, reason) when it
+    is not a JSON object; wrong-typed values (``"frames": "many"``) are dropped and named."""
+    if not path.is_file():
+        return {}, None
+    try:
+        metrics = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        return {}, f"{path}: unreadable ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
+    if not isinstance(metrics, dict):
+        return {}, f"{path}: unreadable (not a JSON object)"
+    problems = {k: why for k, v in metrics.items() if (why := check_metric(k, v)) is not None}
+    if not problems:
+        return metrics, None
+    key = next(iter(problems))
+    valid = {k: v for k, v in metrics.items() if k not in problems}
+    return valid, f"{path}: {key}={metrics[key]!r}: {problems[key]}" + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else "")
+
+
 def read_row(run_dir: Path) -> RunRow:
-    return RunRow(Path(run_dir), read_overrides(Path(run_dir)), RunDir(run_dir).read_metrics())
+    """A run's row, read without changing anything in the folder (a problem is recorded, not fixed)."""
+    run_dir = Path(run_dir)
+    try:
+        overrides, problem = read_overrides(run_dir), None
+    except (OSError, ValueError, yaml.YAMLError) as exc:
+        overrides, problem = {}, f"{RunDir(run_dir).overrides}: unreadable ({type(exc).__name__})"
+    metrics, metrics_problem = read_metrics_file(RunDir(run_dir).metrics)
+    return RunRow(run_dir, overrides, metrics, problem or metrics_problem)
 
 
 def metric_columns(rows: Sequence[RunRow], patterns: Sequence[str]) -> list[str]:
@@ -135,8 +185,10 @@ def results_table(rows: Sequence[RunRow], metrics: Sequence[str] = DEFAULT_METRI
     common = {k: v[0] for k, v in values.items() if len(rows) > 1 and len(set(v)) == 1 and v[0] is not None}
     shown = [k for k in keys if all_keys or k not in common]
     measured = metric_columns(rows, metrics)
-    table = [[run_label(r.path, root), *[r.overrides.get(k) for k in shown], r.status, *[r.metrics.get(m) for m in measured]] for r in rows]
-    return ResultsTable(["run", *shown, "status", *measured], table, {} if all_keys else common)
+    problems = ["problem"] if any(r.problem for r in rows) else []
+    table = [[run_label(r.path, root), *[r.overrides.get(k) for k in shown], r.status, *[r.metrics.get(m) for m in measured],
+              *([r.problem] if problems else [])] for r in rows]
+    return ResultsTable(["run", *shown, "status", *measured, *problems], table, {} if all_keys else common)
 
 
 def format_value(value: Any) -> str:

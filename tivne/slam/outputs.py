@@ -209,6 +209,9 @@ def check_run_dir(run: RunDir, resume: bool, overwrite: bool, saved: Mapping[str
         raise RunDirError(run.root, "run directory is a file")
     run.check_writable()
     if resume:
+        if not run.checkpoint.is_file() and run.results():  # e.g. a second SIGINT: stopped before any checkpoint
+            raise RunDirError(run.checkpoint, "not found: the run stopped before its first checkpoint, so it cannot be resumed; "
+                                              "overwrite=true starts it again from frame 0")
         if not run.checkpoint.is_file():
             raise RunDirError(run.checkpoint, "nothing to resume (no checkpoint; run without resume=true)")
         if run.read_metrics_quietly().get("complete") is True:
@@ -221,7 +224,17 @@ def check_run_dir(run: RunDir, resume: bool, overwrite: bool, saved: Mapping[str
     held = run.results()
     if held and not overwrite:
         names = ", ".join(p.name + ("/" if p.is_dir() else "") for p in held)
-        raise RunDirError(run.root, f"already holds results ({names}); resume=true continues the run, overwrite=true replaces them")
+        raise RunDirError(run.root, f"already holds results ({names}); {way_on(run)}")
+
+
+def way_on(run: RunDir) -> str:
+    """What a user can do with a folder holding results: resume only where there is something to
+    resume (a checkpoint of a run that is not complete), never advice that leads back here."""
+    if run.checkpoint.is_file() and run.read_metrics_quietly().get("complete") is not True:
+        return "resume=true continues the run, overwrite=true replaces them"
+    if run.checkpoint.is_file():
+        return "the run is complete; overwrite=true replaces its results"
+    return "no checkpoint to resume from; overwrite=true replaces them"
 
 
 def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:

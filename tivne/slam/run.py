@@ -42,10 +42,13 @@ from tivne.config import (
 )
 from tivne.evaluation import evaluate_run
 from tivne.field.networks import TimeVaryingField
+from tivne.inputs import check_run_inputs
+from tivne.limits import check_run_size
 from tivne.masks.base import MaskProvider
 from tivne.masks.settings import build_provider, check_provider
 from tivne.meshing import select_mesh_times
 from tivne.render.samplers import PixelSampler
+from tivne.runlock import run_lock
 from tivne.slam.allocation import VoxelAllocator
 from tivne.slam.checkpoint import load_resume_state, set_global_rng_state
 from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
@@ -55,7 +58,7 @@ from tivne.slam.outputs import RunDir, check_run_dir, tensorboard_hparams
 from tivne.slam.results import RunWriter
 from tivne.slam.system import TivNeSLAM, restore
 from tivne.slam.tracking import Tracker
-from tivne.utils import RunFailed, RunInterrupted, configure_runtime, interrupt_signals, require_device
+from tivne.utils import InterruptSignalsFirst, RunFailed, RunInterrupted, configure_runtime, interrupt_signals, require_device
 
 
 def plain(node: Any) -> dict[str, Any]:
@@ -145,9 +148,17 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     """Run SLAM over the configured sequence and return metrics.json's content.
 
     ``masks``: a provider object to use instead of ``cfg.masks.provider`` (e.g. a benchmark's
-    :class:`tivne.masks.base.RecordingMasks` around the configured one).
+    :class:`tivne.masks.base.RecordingMasks` around the configured one). One run at a time
+    writes into ``run_dir`` (:mod:`tivne.runlock`).
     """
+    with run_lock(run_dir):
+        return run_locked(cfg, run_dir, masks)
+
+
+def run_locked(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None) -> dict[str, Any]:
+    """:func:`run` once the run folder's lock is held."""
     settings = TrainSettings.from_config(cfg)  # before any data is read
+    data = check_run_inputs(cfg)  # known keys, TivNe's own reader and mask provider, data.*
     if masks is None:
         check_provider(plain(cfg.masks.provider))
     options = run_dir_options(cfg)
@@ -156,7 +167,10 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     runtime = configure_runtime(settings.runtime.threads, settings.runtime.tune_allocator)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     dataset = instantiate(cfg.dataset)
-    datamodule = SequenceDataModule(dataset, **plain(cfg.data))
+    datamodule = SequenceDataModule(dataset, **data.view_kwargs())
+    size = datamodule.intrinsics
+    check_run_size(size.width, size.height, len(datamodule.view), settings.keyframe.every, settings.keyframe.max_stored,
+                   settings.field.max_capacity, settings.field.embed_dim)  # before the first frame: tivne.limits
     select_mesh_times(datamodule.view.timestamps, list(settings.mesh.times) or None)  # refuse bad times before the run
     resume = prepare_run_dir(cfg, options, run_dir, datamodule.view.timestamps)
     system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks)
@@ -175,6 +189,7 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
         log_every_n_steps=1,
         enable_progress_bar=settings.trainer.progress_bar,
         default_root_dir=str(run_dir),
+        callbacks=[InterruptSignalsFirst()],  # TivNe's SIGINT / SIGTERM handlers over Lightning's
     )
     try:
         with interrupt_signals():

@@ -95,3 +95,21 @@ def test_clear_results_removes_every_result_and_nothing_else(tmp_path):
     run.clear_results()
     assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == [".hydra", ".hydra/config.yaml", "train.log"]
     assert run.results() == []
+
+
+def test_an_interrupted_run_without_a_checkpoint_is_never_sent_in_a_circle(tmp_path):
+    """After a second SIGINT (results, no checkpoint): resume=true and a plain start both name
+    overwrite=true, and neither suggests the other."""
+    from tivne.slam.outputs import RunDirError, check_run_dir
+
+    run = RunDir(tmp_path / "run")
+    run.root.mkdir()
+    run.merge_metrics({"frames": 3, "complete": False})
+    (run.root / "trajectory.txt").write_text("0 0 0 0 0 0 0 1\n")
+    with pytest.raises(RunDirError) as resumed:
+        check_run_dir(run, resume=True, overwrite=False)
+    with pytest.raises(RunDirError) as started:
+        check_run_dir(run, resume=False, overwrite=False)
+    assert "overwrite=true" in str(resumed.value) and "run without resume=true" not in str(resumed.value)
+    assert "overwrite=true" in str(started.value) and "resume=true" not in str(started.value)
+    check_run_dir(run, resume=False, overwrite=True)  # and that way on is open
