@@ -2,6 +2,7 @@
 
     python bench/real.py                                   # the shared TUM fr1/rpy tail, all frames
     python bench/real.py --frames 100                      # the first 100 frames
+    python bench/real.py --preset 7scenes                  # the shared 7-Scenes redkitchen tail
     python bench/real.py --root path/to/rgbd_dataset_freiburg3_walking_xyz --camera fr3
     python bench/real.py --only tivne tracking.method=field  # one system; extra args: TivNe overrides
 
@@ -19,12 +20,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import resource
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -33,62 +30,32 @@ REPO = Path(__file__).resolve().parents[1]
 DEFAULT_ROOT = REPO.parent / "shared" / "data" / "tum_fr1_rpy_tail"
 sys.path.insert(0, str(REPO))
 
+from bench.peer import figures_line, run_open3d, spawn, trajectory_figures  # noqa: E402
 
-def trajectory_figures(est: np.ndarray, gt: np.ndarray) -> dict[str, float]:
-    """ATE (SE(3)-aligned) and per-frame RPE of (N, 4, 4) estimated vs GT c2w poses."""
-    from tivne.metrics.trajectory import absolute_trajectory_error, relative_pose_error
-
-    ate = absolute_trajectory_error(est, gt, align="se3")
-    rpe = relative_pose_error(est, gt, delta=1)
-    return {
-        "ate_rmse_m": float(ate.rmse), "ate_mean_m": float(ate.mean), "ate_max_m": float(ate.max),
-        "rpe_trans_rmse_m": float(rpe.trans_rmse_m), "rpe_rot_rmse_deg": float(rpe.rot_rmse_deg),
-    }
+# The shared real tails (/work/shared/data/README.md): root folder name, camera and its intrinsics.
+PRESETS = {
+    "tum": ("tum_fr1_rpy_tail", "fr1", None),
+    "7scenes": ("7scenes_redkitchen_tail", "custom", (585.0, 585.0, 320.0, 240.0)),  # the Kinect defaults 7-Scenes documents
+}
 
 
-def load_view(root: str, camera: str, frames: int):
+def camera_overrides(camera: str, intrinsics: tuple[float, float, float, float] | None) -> list[str]:
+    """dataset.* overrides of the camera (a preset name, or custom with fx, fy, cx, cy)."""
+    out = [f"dataset.camera={camera}"]
+    if intrinsics is not None:
+        out += [f"dataset.{k}={v}" for k, v in zip(("fx", "fy", "cx", "cy"), intrinsics)]
+    return out
+
+
+def load_view(root: str, camera: str, frames: int, intrinsics: tuple[float, float, float, float] | None = None):
     from data_modules.sequence import SequenceView
     from data_modules.tum import TUMSequence
 
-    return SequenceView(TUMSequence(root=root, camera=camera), max_frames=frames or None)
+    kwargs = dict(zip(("fx", "fy", "cx", "cy"), intrinsics)) if intrinsics is not None else {}
+    return SequenceView(TUMSequence(root=root, camera=camera, **kwargs), max_frames=frames or None)
 
 
-def run_open3d(root: str, camera: str, frames: int) -> dict[str, float]:
-    """Open3D's frame-to-model dense SLAM (examples/python/t_reconstruction_system/dense_slam.py settings)."""
-    import open3d as o3d
-    import open3d.core as o3c
-
-    view = load_view(root, camera, frames)
-    device = o3c.Device("CPU:0")
-    K = o3c.Tensor(view.intrinsics.K().double().numpy())
-    T = o3c.Tensor(np.identity(4))
-    model = o3d.t.pipelines.slam.Model(0.0058, 16, 40000, T, device)  # voxel 3/512 m (example default)
-    h, w = view.intrinsics.height, view.intrinsics.width
-    frame, raycast = o3d.t.pipelines.slam.Frame(h, w, K, device), o3d.t.pipelines.slam.Frame(h, w, K, device)
-    poses, gt, spent = [], [], 0.0
-    depth_scale, depth_max, trunc, odo_thr = 1000.0, 3.0, 8.0, 0.1
-    for i in range(len(view)):
-        f = view[i]
-        depth = o3d.t.geometry.Image(o3c.Tensor((f.depth.numpy() * depth_scale).astype(np.uint16)))
-        color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray((f.rgb.numpy() * 255).round().astype(np.uint8))))
-        start = time.perf_counter()
-        frame.set_data_from_image("depth", depth)
-        frame.set_data_from_image("color", color)
-        if i > 0:
-            result = model.track_frame_to_model(frame, raycast, depth_scale, depth_max, odo_thr)
-            T = T @ result.transformation
-        model.update_frame_pose(i, T)
-        model.integrate(frame, depth_scale, depth_max, trunc)
-        model.synthesize_model_frame(raycast, depth_scale, 0.1, depth_max, trunc, False)
-        spent += time.perf_counter() - start
-        poses.append(T.cpu().numpy())
-        gt.append(f.gt_pose.double().numpy() if f.gt_pose is not None else None)
-    keep = [i for i, g in enumerate(gt) if g is not None]
-    out = trajectory_figures(np.stack([poses[i] for i in keep]), np.stack([gt[i] for i in keep]))
-    return out | {"frames": len(view), "s_per_frame": spent / len(view)}
-
-
-def run_tivne(root: str, camera: str, frames: int, overrides: list[str]) -> dict[str, float]:
+def run_tivne(root: str, camera: str, frames: int, overrides: list[str], intrinsics=None) -> dict[str, float]:
     from hydra import compose, initialize_config_dir
 
     from data_modules.tables import read_tum_trajectory
@@ -96,14 +63,14 @@ def run_tivne(root: str, camera: str, frames: int, overrides: list[str]) -> dict
     from tivne.slam.run import run
     register_defaults()  # the config nodes conf/*.yaml compose onto
 
-    args = ["dataset=tum", f"dataset.root={root}", f"dataset.camera={camera}", "trainer.progress_bar=false", "output.image_every=0"]
+    args = ["dataset=tum", f"dataset.root={root}", *camera_overrides(camera, intrinsics), "trainer.progress_bar=false", "output.image_every=0"]
     if frames:
         args.append(f"data.max_frames={frames}")
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=[*args, *overrides])
     out = Path(tempfile.mkdtemp(prefix="tivne-real-"))
     metrics = run(cfg, out)
-    view = load_view(root, camera, frames)
+    view = load_view(root, camera, frames, intrinsics)
     ts, est = read_tum_trajectory(out / "trajectory.txt")
     gt = {float(view.timestamps[i]): view[i].gt_pose for i in range(len(view))}
     keep = [i for i, t in enumerate(ts) if gt.get(float(t)) is not None]
@@ -114,22 +81,22 @@ def run_tivne(root: str, camera: str, frames: int, overrides: list[str]) -> dict
 
 def child(args: argparse.Namespace, overrides: list[str]) -> None:
     """Run one system in this process and print its figures (plus peak RSS) as one JSON line."""
+    intrinsics = tuple(args.intrinsics) if args.intrinsics else None
     if args.only == "open3d":
-        figures = run_open3d(args.root, args.camera, args.frames)
+        figures = run_open3d(load_view(args.root, args.camera, args.frames, intrinsics))
     else:
-        figures = run_tivne(args.root, args.camera, args.frames, overrides)
-    figures["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    print("FIGURES " + json.dumps(figures))
+        figures = run_tivne(args.root, args.camera, args.frames, overrides, intrinsics)
+    print(figures_line(figures))
 
 
-def spawn(system: str, args: argparse.Namespace, overrides: list[str]) -> dict[str, float] | None:
-    cmd = [sys.executable, __file__, "--child", "--only", system, "--root", args.root, "--camera", args.camera, "--frames", str(args.frames), *overrides]
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OMP_WAIT_POLICY="PASSIVE"))
-    lines = [line for line in proc.stdout.splitlines() if line.startswith("FIGURES ")]
-    if proc.returncode != 0 or not lines:
-        print(f"{system}: failed (exit {proc.returncode}): {proc.stderr.strip().splitlines()[-1:] or ''}", file=sys.stderr)
-        return None
-    return json.loads(lines[-1][len("FIGURES "):])
+def run_child(system: str, args: argparse.Namespace, overrides: list[str]) -> dict[str, float] | None:
+    cmd = [sys.executable, __file__, "--child", "--only", system, "--root", args.root, "--camera", args.camera, "--frames", str(args.frames)]
+    if args.intrinsics:
+        cmd += ["--intrinsics", *map(str, args.intrinsics)]
+    figures, why = spawn([*cmd, *overrides], args.threads)
+    if figures is None:
+        print(f"{system}: failed ({why})", file=sys.stderr)
+    return figures
 
 
 def table(results: dict[str, dict[str, float] | None]) -> str:
@@ -151,17 +118,24 @@ def table(results: dict[str, dict[str, float] | None]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--preset", choices=sorted(PRESETS), default=None, help="a shared real tail: its root, camera and intrinsics")
+    parser.add_argument("--data-dir", default=str(DEFAULT_ROOT.parent), help="the folder holding the shared tails (for --preset)")
     parser.add_argument("--root", default=str(DEFAULT_ROOT), help="a TUM-layout folder")
     parser.add_argument("--camera", default="fr1")
+    parser.add_argument("--intrinsics", type=float, nargs=4, default=None, metavar=("FX", "FY", "CX", "CY"), help="with --camera custom")
+    parser.add_argument("--threads", type=int, default=2, help="OpenMP threads of each system's process")
     parser.add_argument("--frames", type=int, default=0, help="first n frames (0 = all)")
     parser.add_argument("--only", choices=("tivne", "open3d"), default=None)
     parser.add_argument("--json", default=None, help="also write the figures here")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args, overrides = parser.parse_known_args()
+    if args.preset:
+        folder, args.camera, args.intrinsics = PRESETS[args.preset]
+        args.root = str(Path(args.data_dir) / folder)
     if args.child:
         return child(args, overrides)
     systems = [args.only] if args.only else ["tivne", "open3d"]
-    results = {s: spawn(s, args, overrides) for s in systems}
+    results = {s: run_child(s, args, overrides) for s in systems}
     print(f"\nbench/real.py on {args.root} ({args.frames or 'all'} frames; TivNe overrides: {' '.join(overrides) or 'none'})")
     print(table({"TivNe" if k == "tivne" else "Open3D": v for k, v in results.items()}))
     print(json.dumps(results))

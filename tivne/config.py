@@ -220,6 +220,8 @@ class MappingConfig(Settings):
 
     section: ClassVar[str] = "mapping"
     iters: int = setting(20, ge=1)
+    # 40 makes the first frame ~6x cheaper (CPU time) and kept the 150-frame cube's figures, but on a
+    # 40-frame cube run the first-time mesh came out worse (accuracy 1.15 vs 0.59 cm): kept at 200.
     first_iters: int = setting(200, ge=0)
     rays: int = setting(512, ge=1)
     current_share: float = setting(0.5, gt=0, le=1)

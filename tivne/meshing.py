@@ -1,11 +1,13 @@
 """Mesh extraction at any time τ: marching cubes restricted to the allocated voxels.
 
-A lattice of step ``resolution`` spans the allocated voxels' bounding box. It is processed in slabs
-along x (so memory stays bounded for large scenes); in each slab the field is evaluated, in chunks
-and without gradients, only at lattice points inside allocated voxels, and marching cubes runs only
-on lattice cells whose 8 corners are all inside, so no surface appears where the map knows nothing.
-Neighbouring slabs share one lattice plane; the vertices on it are welded, so the result is one mesh
-without seams.
+A lattice of step ``resolution`` spans the allocated voxels' bounding box, cut into bricks of
+``brick`` cells per edge; only the bricks that touch an allocated voxel are visited (a room's
+surface fills a few percent of its box). Batches of bricks are tested against the map at once
+(:mod:`tivne.field.lattice`: integer hash keys, no float work per point), the field is evaluated
+without gradients only at lattice points inside allocated (and, culling, observed) voxels, and
+marching cubes runs per brick only on cells whose 8 corners are all inside, so no surface appears
+where the map knows nothing. Neighbouring bricks share a plane of lattice points; the vertices on it
+are welded, so the result is one mesh without seams.
 """
 
 from __future__ import annotations
@@ -21,11 +23,15 @@ from skimage import measure
 
 from data_modules.io import atomic_write
 from tivne.config import ConfigError, MeshConfig
+from tivne.field.lattice import Lattice, brick_inside, bricks_for_voxels, lattice_for_voxels, observed_space
 from tivne.field.networks import TimeVaryingField
 from tivne.field.voxels import CORNER_OFFSETS
 
-# Lattice points per slab: ~100 bytes of temporaries each (coords, keys, volume, mask), ~200 MB per slab.
+# Lattice points per batch of bricks: ~60 bytes of temporaries each (keys, volume, masks), ~120 MB.
 DEFAULT_SLAB_POINTS = 1 << 21
+# Cells per brick edge: large enough that marching cubes' per-call cost is small against its work,
+# small enough that bricks hug the surface (16 cells of 2 cm = 0.32 m, about 3 voxels).
+DEFAULT_BRICK = 16
 # Mesh times may lie this far outside the recorded range (seconds); they are clamped to it.
 TIME_TOLERANCE_S = 1e-3
 
@@ -75,8 +81,8 @@ def cull_backfaces(mesh: trimesh.Trimesh, camera_centres: np.ndarray, chunk: int
     seen = np.zeros(len(points), dtype=bool)
     for start in range(0, len(points), chunk):
         p, n = points[start : start + chunk], normals[start : start + chunk]
-        # n . (c - p) > 0 for some camera c: the face's free side faces that camera.
-        seen[start : start + chunk] = ((centres[None] - p[:, None]) * n[:, None]).sum(-1).max(1) > 0
+        # n . (c - p) > 0 for some camera c: the face's free side faces that camera (one GEMM per chunk)
+        seen[start : start + chunk] = (n @ centres.T - (n * p).sum(1, keepdims=True)).max(1) > 0
     return keep_faces(mesh, seen)
 
 
@@ -133,48 +139,10 @@ def near_observed(
     return near
 
 
-def lattice_for_voxels(voxel_coords: torch.Tensor, voxel_size: float, resolution: float) -> tuple[np.ndarray, np.ndarray]:
-    """Lattice of step ``resolution`` covering the voxels' bounding box.
-
-    Args:
-        voxel_coords: (V, 3) integer voxel coordinates, V > 0.
-    Returns:
-        origin (3,) float64 world position of lattice point (0, 0, 0) (the box's min corner) and
-        dims (3,) int64 number of lattice points per axis (the last point does not pass the box).
-    """
-    coords = voxel_coords.detach().cpu().double().numpy()
-    lo = coords.min(0) * voxel_size
-    hi = (coords.max(0) + 1) * voxel_size
-    dims = np.floor((hi - lo) / resolution + 1e-9).astype(np.int64) + 1
-    return lo, dims
-
-
-def cell_mask(point_inside: np.ndarray) -> np.ndarray:
-    """Marching-cubes mask from a per-lattice-point mask.
-
-    Args:
-        point_inside: (X, Y, Z) bool, lattice point inside an allocated voxel.
-    Returns:
-        (X, Y, Z) bool, True at index (i+1, j+1, k+1) iff all 8 corners of the cell with min corner
-        (i, j, k) are inside. skimage's Lewiner marching cubes tests ``mask`` at a cell's *max*
-        corner (measured on skimage 0.26; tests/tivne/test_meshing.py guards it).
-    """
-    p = point_inside
-    cells = p[:-1, :-1, :-1].copy()
-    for dx in (0, 1):
-        for dy in (0, 1):
-            for dz in (0, 1):
-                if dx or dy or dz:
-                    cells &= p[dx : p.shape[0] - 1 + dx, dy : p.shape[1] - 1 + dy, dz : p.shape[2] - 1 + dz]
-    mask = np.zeros_like(p)
-    mask[1:, 1:, 1:] = cells
-    return mask
-
-
 def weld_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Merge exactly coincident vertices and drop faces that collapse.
 
-    Slabs share a lattice plane and interpolate its vertices from the same two lattice values, so
+    Bricks share a lattice plane and interpolate its vertices from the same two lattice values, so
     seam vertices are exact duplicates; skimage's masked marching cubes also emits a few duplicates
     of its own (measured: 16 of 1896 on a sphere), which would break watertightness.
 
@@ -197,39 +165,61 @@ def empty_mesh() -> trimesh.Trimesh:
     return trimesh.Trimesh(vertices=np.zeros((0, 3)), faces=np.zeros((0, 3), dtype=np.int64), process=False)
 
 
-def slab_surface(
-    field: TimeVaryingField, pts: torch.Tensor, shape: tuple[int, int, int], tau: float, resolution: float,
-    culling: MeshConfig | None, chunk: int,
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """Marching cubes on one slab of lattice points, in lattice units of the slab.
+def brick_surfaces(
+    field: TimeVaryingField, lattice: Lattice, bricks: torch.Tensor, brick: int, tau: float, culling: MeshConfig | None,
+    chunk: int, batch_points: int,
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Marching cubes brick by brick, the field evaluated in large batches of bricks.
 
     Args:
-        pts: (X*Y*Z, 3) lattice points of the slab (x major); shape: (X, Y, Z).
+        bricks: (B, 3) int64 brick indices (:func:`bricks_for_voxels`); brick: cells per brick edge.
     Returns:
-        vertices (V, 3) and faces (F, 3), or None when the slab holds no surface.
+        per brick with a surface, vertices (V, 3) in lattice-index units and faces (F, 3) int64.
     """
-    grid = field.grid
-    inside = grid.contains(pts)
-    if culling is not None and (culling.min_hits > 0 or culling.dynamic_window is not None):
-        window = culling.dynamic_window
-        inside &= near_observed(grid, pts, culling.min_hits, resolution, None if window is None else tau, window or 0.0)
-    inside_np = inside.cpu().numpy().reshape(shape)
-    mask = cell_mask(inside_np)
-    if not mask.any():
-        return None
-    volume = np.ones(shape, dtype=np.float32)  # positive (free) where not evaluated
-    sdf, _ = query_field(field, pts[inside], tau, chunk)
-    volume[inside_np] = sdf.float().cpu().numpy()
-    vals = volume[inside_np]
-    if not vals.min() < 0 < vals.max():
-        return None
-    try:
-        # 'descent' orients faces towards positive SDF (free space): a closed object gets a
-        # positive trimesh volume (tested).
-        v, f, _, _ = measure.marching_cubes(volume, level=0.0, mask=mask, gradient_direction="descent")
-    except (RuntimeError, ValueError):  # no crossing inside the masked cells
-        return None
-    return (v.astype(np.float64), f.astype(np.int64)) if len(f) else None
+    grid, device = field.grid, field_device(field)
+    cull = culling is not None and (culling.min_hits > 0 or culling.dynamic_window is not None)
+    window = None if culling is None else culling.dynamic_window
+    space = observed_space(
+        grid, lattice, lattice.step if cull else None, culling.min_hits if cull else 0,
+        None if window is None else tau, window or 0.0,
+    )
+    axes = [lattice.axis(a, device) for a in range(3)]
+    n = brick + 1  # a brick's points per axis; neighbours share a plane of points
+    ar = torch.arange(n, device=device)
+    per_batch = max(1, batch_points // n**3)
+    verts, faces = [], []
+    for start in range(0, len(bricks), per_batch):
+        first = bricks[start : start + per_batch].to(device) * brick  # (nb, 3) first point index
+        index = tuple(first[:, a, None] + ar for a in range(3))  # per axis (nb, n)
+        inside = brick_inside(space, index, lattice.dims)  # (nb, n, n, n)
+        if not inside.any():
+            continue
+        b, i, j, k = inside.nonzero(as_tuple=True)
+        pts = torch.stack([axes[0][index[0][b, i]], axes[1][index[1][b, j]], axes[2][index[2][b, k]]], -1)
+        volume = torch.ones(inside.shape, dtype=torch.float32, device=device)  # positive (free) where not evaluated
+        volume[b, i, j, k] = query_field(field, pts, tau, chunk)[0].float()
+        cells = inside[:, :-1, :-1, :-1].clone()
+        for d in range(1, 8):
+            dx, dy, dz = d >> 2, (d >> 1) & 1, d & 1
+            cells &= inside[:, dx : n - 1 + dx, dy : n - 1 + dy, dz : n - 1 + dz]
+        crossing = ((volume < 0) & inside).flatten(1).any(1) & ((volume > 0) & inside).flatten(1).any(1)
+        live = torch.nonzero(cells.flatten(1).any(1) & crossing)[:, 0].cpu().numpy()
+        cells_np, volume_np, first_np = cells.cpu().numpy(), volume.cpu().numpy(), first.cpu().numpy()
+        for m in live:
+            mask = np.zeros((n, n, n), dtype=bool)
+            # skimage's Lewiner marching cubes tests ``mask`` at a cell's *max* corner (measured on
+            # skimage 0.26; tests/tivne/test_meshing.py guards it)
+            mask[1:, 1:, 1:] = cells_np[m]
+            try:
+                # 'descent' orients faces towards positive SDF (free space): a closed object gets a
+                # positive trimesh volume (tested).
+                v, f, _, _ = measure.marching_cubes(volume_np[m], level=0.0, mask=mask, gradient_direction="descent")
+            except (RuntimeError, ValueError):  # no crossing inside the masked cells
+                continue
+            if len(f):
+                verts.append(v.astype(np.float64) + first_np[m])
+                faces.append(f.astype(np.int64))
+    return verts, faces
 
 
 def coloured_mesh(field: TimeVaryingField, verts: np.ndarray, faces: np.ndarray, tau: float, chunk: int) -> trimesh.Trimesh:
@@ -260,6 +250,7 @@ def extract_mesh(
     slab_points: int = DEFAULT_SLAB_POINTS,
     culling: MeshConfig | None = None,
     camera_centres: np.ndarray | None = None,
+    brick: int = DEFAULT_BRICK,
 ) -> trimesh.Trimesh:
     """Zero level set of the field at τ as one welded, vertex-coloured mesh in world metres.
 
@@ -269,10 +260,11 @@ def extract_mesh(
         resolution: lattice step in metres.
         chunk: points per field evaluation.
         device: where to evaluate; default the field's device (a field elsewhere is copied there).
-        slab_points: lattice points per slab (bounds the temporaries).
+        slab_points: lattice points per batch of bricks (bounds the temporaries).
         culling: keep the mesh to observed space (``min_hits``, ``dynamic_window``, ``near_surface``, ``backfaces`` of a
             :class:`tivne.config.MeshConfig`); None: every allocated voxel.
         camera_centres: (N, 3) camera positions of the run (for ``culling.backfaces``).
+        brick: lattice cells per brick edge (marching cubes runs once per brick that holds a surface).
     Returns:
         ``trimesh.Trimesh`` with faces oriented towards free space (positive SDF) and RGBA uint8
         vertex colours from the field's rgb at τ; an empty mesh when no voxel is allocated or the
@@ -285,35 +277,19 @@ def extract_mesh(
     grid = field.grid
     if grid.num_voxels == 0:
         return empty_mesh()
-    origin, dims = lattice_for_voxels(grid.voxel_coords(), grid.voxel_size, resolution)
-    nx, ny, nz = (int(d) for d in dims)
-    if min(nx, ny, nz) < 2:
+    lattice = lattice_for_voxels(grid.voxel_coords(), grid.voxel_size, resolution)
+    if lattice.dims.min() < 2:
         return empty_mesh()
-    ys = origin[1] + resolution * np.arange(ny)
-    zs = origin[2] + resolution * np.arange(nz)
-    yz = np.stack(np.meshgrid(ys, zs, indexing="ij"), -1).reshape(-1, 2)  # (ny*nz, 2)
-    planes_per_slab = max(2, slab_points // (ny * nz))
-    all_verts, all_faces, n_verts = [], [], 0
-    start = 0
-    while start < nx - 1:
-        stop = min(nx, start + planes_per_slab)  # lattice planes [start, stop); cells start..stop-2
-        xs = origin[0] + resolution * np.arange(start, stop)
-        pts = np.concatenate([np.repeat(xs, len(yz))[:, None], np.tile(yz, (len(xs), 1))], 1)
-        pts_t = torch.from_numpy(pts).to(device=field_device(field), dtype=torch.float32)
-        found = slab_surface(field, pts_t, (len(xs), ny, nz), tau, resolution, culling, chunk)
-        if found is not None:
-            v, f = found
-            v[:, 0] += start
-            all_verts.append(v)
-            all_faces.append(f + n_verts)
-            n_verts += len(v)
-        start = stop - 1  # the next slab starts on this slab's last plane
+    bricks = bricks_for_voxels(grid.voxel_coords(), grid.voxel_size, lattice, brick)
+    all_verts, all_faces = brick_surfaces(field, lattice, bricks, brick, tau, culling, chunk, slab_points)
+    n_verts = np.cumsum([0] + [len(v) for v in all_verts])
+    all_faces = [f + n for f, n in zip(all_faces, n_verts)]
     if not all_faces:
         return empty_mesh()
     verts, faces = weld_vertices(np.concatenate(all_verts), np.concatenate(all_faces))
     if len(faces) == 0:
         return empty_mesh()
-    mesh = coloured_mesh(field, origin[None] + verts * resolution, faces, tau, chunk)
+    mesh = coloured_mesh(field, lattice.origin[None] + verts * resolution, faces, tau, chunk)
     if culling is not None and culling.near_surface:
         mesh = cull_unobserved_faces(mesh, grid, tau, culling.dynamic_window, resolution)
     if culling is not None and culling.backfaces and camera_centres is not None:

@@ -98,13 +98,14 @@ def test_sphere_vertices_on_surface_watertight_outward_coloured():
     assert (colours == np.round(np.array([*COLOUR, 1.0]) * 255).astype(np.uint8)).all()
 
 
-def test_slabs_give_the_same_welded_mesh():
+@pytest.mark.parametrize("brick, slab_points", [(3, 1 << 21), (16, 300), (64, 1 << 21)])
+def test_bricks_give_the_same_welded_mesh(brick, slab_points):
     field = analytic_sphere()
-    whole = extract_mesh(field, 0.0, resolution=0.03)
-    slabs = extract_mesh(field, 0.0, resolution=0.03, slab_points=300)  # ~2 lattice planes per slab
-    assert slabs.is_watertight
-    assert len(slabs.vertices) == len(whole.vertices) and len(slabs.faces) == len(whole.faces)
-    assert np.allclose(np.sort(slabs.vertices, axis=0), np.sort(whole.vertices, axis=0))
+    whole = extract_mesh(field, 0.0, resolution=0.03, brick=16)
+    parts = extract_mesh(field, 0.0, resolution=0.03, brick=brick, slab_points=slab_points)  # 300: one brick per batch
+    assert parts.is_watertight  # seams between bricks welded
+    assert len(parts.vertices) == len(whole.vertices) and len(parts.faces) == len(whole.faces)
+    assert np.allclose(np.sort(parts.vertices, axis=0), np.sort(whole.vertices, axis=0))
 
 
 def test_no_surface_outside_allocated_voxels():

@@ -89,6 +89,37 @@ def test_deformation_exactly_zero_at_time_zero_for_any_weights(seed):
         assert (delta.abs().sum(-1) > 0).all()
 
 
+def gated_full_pass(d: DeformationMLP, e: torch.Tensor, tau: torch.Tensor, code: torch.Tensor) -> torch.Tensor:
+    """Θd written out without the τ = 0 shortcut: tanh(τ / ramp) · MLP(e, γ(τ))."""
+    return torch.tanh(tau / d.ramp)[:, None] * d.out(d.trunk(torch.cat([e, code], dim=-1)))
+
+
+def test_time_zero_shortcut_gives_the_full_pass_outputs_and_gradients():
+    field = small_field()
+    randomise_output_layer(field.deformation)
+    pts, tau0 = inside_points(64), torch.zeros(64)
+
+    def outputs_and_grads(full: bool):
+        field.zero_grad(set_to_none=True)
+        if full:  # the same field with Θd's forward replaced by the plain formula
+            field.deformation.forward = lambda e, tau, code: gated_full_pass(field.deformation, e, tau, code)
+        try:
+            out = field(pts, tau0)
+        finally:
+            field.deformation.__dict__.pop("forward", None)
+        (out.sdf.sum() + out.rgb.sum() + out.offset_sq.sum()).backward()
+        return out, {n: p.grad for n, p in field.named_parameters()}
+
+    short, short_grads = outputs_and_grads(False)
+    full, full_grads = outputs_and_grads(True)
+    assert torch.equal(short.sdf, full.sdf) and torch.equal(short.rgb, full.rgb)
+    for name, grad in full_grads.items():
+        # Θd's weights get zero gradients, not none: Adam's step counts then match the full pass
+        assert short_grads[name] is not None and torch.equal(short_grads[name], grad), name
+    assert all((g == 0).all() for n, g in short_grads.items() if n.startswith("deformation."))
+    assert short_grads["grid.embeddings"].abs().sum() > 0
+
+
 def test_deformation_gate_is_tanh_ramp():
     torch.manual_seed(0)
     d = DeformationMLP(embed_dim=4, time_dim=1, hidden_dim=8, ramp=0.2)
