@@ -1,0 +1,5 @@
+"""Rigid moving objects: instances per frame, one SE(3) track per object, their TUM output."""
+
+from tivne.slam.objects.track import ObjectTrack
+
+__all__ = ["ObjectTrack"]
