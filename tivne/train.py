@@ -37,6 +37,7 @@ from tivne.config import (
     MappingConfig,
     MeshConfig,
     ObjectiveConfig,
+    ObjectsConfig,
     OdometryConfig,
     OutputConfig,
     RenderConfig,
@@ -81,6 +82,7 @@ class TrainSettings:
     output: OutputConfig
     trainer: TrainerConfig
     objective: ObjectiveConfig
+    objects: ObjectsConfig
 
     @classmethod
     def from_config(cls, cfg: DictConfig) -> "TrainSettings":
@@ -110,6 +112,7 @@ def build_system(
         run_dir=run_dir,
         seed=int(cfg.seed),
         run_config=run_config(cfg),
+        objects=s.objects,
     )
 
 

@@ -21,6 +21,7 @@ from tivne.config import (
     LossWeights,
     MappingConfig,
     MeshConfig,
+    ObjectsConfig,
     OdometryConfig,
     OutputConfig,
     RenderConfig,
@@ -37,6 +38,7 @@ from tivne.slam.checkpoint import restore_run_state, run_state, save_checkpoint,
 from tivne.slam.frontend import Tracker
 from tivne.slam.keyframes import KeyframeDatabase, KeyframePolicy
 from tivne.slam.mapping import Mapper, final_pass
+from tivne.slam.objects import ObjectTracker
 from tivne.slam.outputs import RunDir, image_panels, tensorboard_mesh
 from tivne.slam.tracking import frozen
 from tivne.slam.trajectory import Trajectory
@@ -88,6 +90,7 @@ class TivNeSLAM(L.LightningModule):
         run_dir: str | Path,
         seed: int = 0,
         run_config: dict[str, Any] | None = None,
+        objects: ObjectsConfig = ObjectsConfig(),
     ) -> None:
         super().__init__()
         self.automatic_optimization = False
@@ -118,6 +121,7 @@ class TivNeSLAM(L.LightningModule):
         self.between_frames = True  # the state is whole (a checkpoint of it can be resumed)
         self.resume_payload: dict[str, Any] | None = None  # restored once the module is on its device
         self.pending_rng: dict[str, Any] | None = None  # set just before the next frame
+        self.objects = ObjectTracker(objects, intrinsics.K(), odometry) if objects.track else None  # [objects hook 1/4]
 
     # ---- Lightning plumbing -------------------------------------------------------------------
     def configure_optimizers(self):
@@ -170,6 +174,8 @@ class TivNeSLAM(L.LightningModule):
         view = View(k, tau, frame.rgb, frame.depth, mask, pose)
         if not lost:  # a frame whose pose is not known is never mapped
             stats.update(self._integrate(k, view, frame, stats))
+            if self.objects is not None:  # [objects hook 2/4] per-object rigid tracks, camera pose known
+                self.objects.observe(frame, view.pose, tau, view.dynamic)
         self.trajectory.append(frame.timestamp, view.pose, self.db.views[-1].frame_id, self.db.views[-1].pose, frame.gt_pose)
         self.tracked = (self.tracked + [view.pose.detach()])[-2:]
         self.last_view = view
@@ -294,6 +300,8 @@ class TivNeSLAM(L.LightningModule):
         return self.trajectory.poses(self.keyframe_poses())
 
     def write_trajectory(self) -> Path:
+        if self.objects is not None:  # [objects hook 3/4] objects/<id>.txt
+            self.objects.write(self.run)
         return self.run.write_trajectory(self.trajectory.timestamps(), self.poses())
 
     def on_train_end(self) -> None:
@@ -373,7 +381,7 @@ class TivNeSLAM(L.LightningModule):
             "frames_without_tracking": self.counts.without_tracking,
             "tracking_recovered": self.counts.recovered,
             "checkpoint": RunDir.CHECKPOINT,
-        }
+        } | (self.objects.metrics() if self.objects is not None else {})  # [objects hook 4/4]
         result = self.trajectory.ate(self.keyframe_poses())
         if result is not None:
             metrics.update(result.as_metrics())

@@ -10,6 +10,7 @@ from its last pose moved so that its last observed points' centre lands on the n
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,8 @@ from tivne.slam.pyramid import PyramidLevel
 
 # A track is written once it has this many observed poses (one-frame segments are clutter).
 MIN_WRITTEN_POSES = 3
+# The least share of an object's pixels its reference must see for a pose to count.
+MIN_OVERLAP = 0.1
 # Keyframe observations kept per object (the oldest goes first).
 MAX_REFERENCES = 12
 # A keyframe is reused when it saw the object from within this angle of the predicted view.
@@ -122,8 +125,27 @@ class ObjectTracker:
         self.stamps: dict[int, dict[float, float]] = {}  # per track: τ -> timestamp [s]
         self.live: dict[int, _Live] = {}
         self.next_id = 1
+        self.seconds, self.frames = 0.0, 0
 
     # ---- the per-frame step -------------------------------------------------------------------
+    def instances_of(self, frame: Frame, dynamic: torch.Tensor | None) -> torch.Tensor | None:
+        """What :meth:`step` reads for ``objects.source``: the frame's instance ids (dataset) or its
+        dynamic mask ``dynamic`` (H, W) bool (geometric)."""
+        return frame.instances if self.cfg.source == "dataset" else dynamic
+
+    def observe(self, frame: Frame, camera_pose: torch.Tensor, tau: float, dynamic: torch.Tensor | None) -> list[ObjectObservation]:
+        """:meth:`step` on :meth:`instances_of`, timed (``seconds``, ``frames``: the objects' cost)."""
+        start = time.perf_counter()
+        out = self.step(frame, camera_pose, tau, self.instances_of(frame, dynamic))
+        self.seconds += time.perf_counter() - start
+        self.frames += 1
+        return out
+
+    def metrics(self) -> dict[str, Any]:
+        """metrics.json keys of the tracking itself: tracks written, the objects' s/frame."""
+        return {"objects_written": len(self.written_tracks()),
+                "objects_s_per_frame": self.seconds / self.frames if self.frames else None}
+
     def step(self, frame: Frame, camera_pose: torch.Tensor, tau: float, instances: torch.Tensor | None) -> list[ObjectObservation]:
         """Observe the objects of one frame whose camera-to-world pose ``camera_pose`` (4, 4) is known.
 
@@ -170,10 +192,11 @@ class ObjectTracker:
                                  overlap=res.overlap, inlier_ratio=res.inlier_ratio)
 
     def _good(self, res: OdometryResult) -> bool:
-        """The object odometry is usable: enough, overlapping, consistent pairs (not its pose_std
-        threshold: an object has few pixels, so its σ is larger than a whole frame's)."""
+        """The object odometry is usable: enough consistent pairs overlapping by MIN_OVERLAP (not
+        the camera's overlap or pose_std thresholds: an object entering the view grows by more than
+        its reference shows, and on few pixels σ is larger than a whole frame's)."""
         o = self.odo
-        return res.num_valid >= o.min_correspondences and res.overlap >= o.min_overlap and res.inlier_ratio >= o.min_inlier_ratio
+        return res.num_valid >= o.min_correspondences and res.overlap >= MIN_OVERLAP and res.inlier_ratio >= o.min_inlier_ratio
 
     def _start(self, oid, mask, pyramid, depth, T_wc, tau, t, pixels) -> ObjectObservation:
         """A new track: the object frame has the world's axes and its origin at the centre of the
