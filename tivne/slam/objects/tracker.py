@@ -227,14 +227,15 @@ class ObjectTracker:
         self.live[oid] = _Live(refs, pts, extent(pts), t)
 
     def _predict(self, oid: int, mask: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float) -> torch.Tensor:
-        """Constant velocity while the object is followed; after a gap its last pose moved so its
-        last points' centre lands on the centre of this observation (rotation held)."""
+        """Constant velocity (from the last two observations, when they were no more than
+        ``max_gap_s`` apart); after a gap that pose moved so the last observed points' centre lands
+        on the centre of this observation (the rotation still carried on at the last rate)."""
         track, live = self.tracks[oid], self.live.get(oid)
         taus, poses = track.observed_taus(), track.poses()
+        steady = len(taus) >= 2 and self.stamps[oid][taus[-1]] - self.stamps[oid][taus[-2]] <= self.cfg.max_gap_s
+        T = constant_velocity(taus, poses, tau) if steady else poses[-1].clone()
         if live is not None and t - live.last_time <= self.cfg.max_gap_s:
-            last = self.stamps[oid][taus[-1]]
-            return constant_velocity(taus, poses, tau) if len(taus) < 2 or last - self.stamps[oid][taus[-2]] <= self.cfg.max_gap_s else poses[-1].clone()
-        T = poses[-1].clone()
+            return T
         if live is not None and len(live.points):
             centre_now = world_points(mask, depth, self.K, T_wc).mean(0)
             T[:3, 3] += centre_now - transform_points(T, live.points.mean(0, keepdim=True))[0]
@@ -259,15 +260,16 @@ class ObjectTracker:
         for j, seg in enumerate(segments):
             if j in taken:
                 continue
-            k = self._reidentify(seg, depth, T_wc, set(followed) | {key for key, _ in out})
+            k = self._reidentify(seg, depth, T_wc, tau, set(followed) | {key for key, _ in out})
             if k is None:
                 k, self.next_id = self.next_id, self.next_id + 1
             out[(k, k in self.tracks)] = seg
         return out
 
-    def _reidentify(self, seg: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, busy: set[int]) -> int | None:
-        """The lost track whose held pose puts its points' centre nearest the segment's centre,
-        within ``reid_distance`` and with a size within ``reid_size_ratio``; None if none."""
+    def _reidentify(self, seg: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, busy: set[int]) -> int | None:
+        """The lost track that puts its points' centre nearest the segment's centre, held at its last
+        pose or carried on at its last velocity (whichever is nearer), within ``reid_distance`` and
+        with a size within ``reid_size_ratio``; None if none."""
         pts = world_points(seg, depth, self.K, T_wc)
         if len(pts) == 0:
             return None
@@ -276,7 +278,9 @@ class ObjectTracker:
             if k in busy or not len(lv.points):
                 continue
             ratio = max(size, lv.size) / max(min(size, lv.size), 1e-6)
-            d = float((transform_points(self.tracks[k].poses()[-1], lv.points).mean(0) - centre).norm())
+            taus, poses = self.tracks[k].observed_taus(), self.tracks[k].poses()
+            ends = [transform_points(T, lv.points).mean(0) for T in (poses[-1], constant_velocity(taus, poses, tau))]
+            d = min(float((e - centre).norm()) for e in ends)
             if d <= self.cfg.reid_distance and ratio <= self.cfg.reid_size_ratio and (best is None or d < best[0]):
                 best = (d, k)
         return None if best is None else best[1]
