@@ -131,3 +131,15 @@ def test_module_and_function_size(module):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES
     ]
     assert long == [], f"{path.relative_to(REPO)}: {long}"
+
+
+# The object tracking is a component under the per-frame loop (it is ported onto the refactored loop
+# as is): of tivne.slam it uses only the odometry, its pyramids and the run directory.
+OBJECTS_MAY_USE_OF_SLAM = ("tivne.slam.objects", "tivne.slam.odometry", "tivne.slam.pyramid", "tivne.slam.robust", "tivne.slam.outputs")
+
+
+def test_objects_package_uses_only_the_odometry_of_the_loop():
+    assert any(m.startswith("tivne.slam.objects") for m in GRAPH)
+    bad = [f"{m} -> {d}" for m, deps in GRAPH.items() if m.startswith("tivne.slam.objects") for d in deps
+           if d.startswith("tivne.slam") and not d.startswith(OBJECTS_MAY_USE_OF_SLAM)]
+    assert bad == []

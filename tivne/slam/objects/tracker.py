@@ -23,7 +23,15 @@ from data_modules.tables import write_tum_trajectory
 from tivne.config import ObjectsConfig, OdometryConfig
 from tivne.geometry import backproject_depth, transform_points
 from tivne.slam.objects.instances import (
-    dataset_instances, erode, extent, greedy_match, iou, mask_segments, projected_mask, smooth_depth, world_points,
+    dataset_instances,
+    erode,
+    extent,
+    greedy_match,
+    iou,
+    mask_segments,
+    projected_mask,
+    smooth_depth,
+    world_points,
 )
 from tivne.slam.objects.motion import camera_in_object, constant_velocity, object_pose, odometry_init
 from tivne.slam.objects.track import ObjectTrack
