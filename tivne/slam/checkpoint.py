@@ -186,6 +186,7 @@ def run_state(run: ResumableRun) -> dict[str, Any]:
         "trajectory": run.trajectory.state_dict(),
         "tracker": run.tracker.state_dict(),
         "masks": run.masks.state_dict(),
+        "objects": None if getattr(run, "objects", None) is None else run.objects.state_dict(),  # [objects hook]
         "motion": [p.detach() for p in run.tracked],
         "t0": run.t0,
         "last_mapped_tau": float(run.last_mapped_tau),
@@ -210,6 +211,8 @@ def restore_run_state(run: ResumableRun, payload: dict[str, Any], device: torch.
     run.trajectory.load_state_dict(state["trajectory"])
     run.tracker.load_state_dict(state["tracker"])
     run.masks.load_state_dict(state["masks"])
+    if getattr(run, "objects", None) is not None and state.get("objects") is not None:  # [objects hook]
+        run.objects.load_state_dict(state["objects"])
     run.tracked = list(state["motion"])
     run.t0, run.last_mapped_tau = state["t0"], float(state["last_mapped_tau"])
     last = state["last_view"]
