@@ -274,6 +274,7 @@ class CoFusionSequence(SequenceDataset):
             mask=None if ids is None else torch.from_numpy(ids != 0),
             gt_pose=None if self.gt_poses[i] is None else self.gt_poses[i].clone(),
             source=self.colour_paths[i].name,
+            instances=None if ids is None else torch.from_numpy(ids.astype(np.int64)),
         )
         return frame.validate(self.colour_paths[i], self.intrinsics)
 

@@ -101,6 +101,8 @@ class Frame:
         source: file name of the colour image the frame was read from (e.g. ``rgb_0042.png``; what
             per-frame side files such as mask PNGs are matched by), or None for frames without a
             file of their own (KLG logs, synthetic sequences).
+        instances: (H, W) int64 object instance id per pixel (0 = static, k > 0 = the dataset's
+            object k, the same k in every frame), or None when the dataset has no instance masks.
     """
 
     index: int
@@ -110,6 +112,7 @@ class Frame:
     mask: torch.Tensor | None = None
     gt_pose: torch.Tensor | None = None
     source: str | None = None
+    instances: torch.Tensor | None = None
 
     @property
     def height(self) -> int:
@@ -126,6 +129,7 @@ class Frame:
             depth=self.depth.to(device),
             mask=None if self.mask is None else self.mask.to(device),
             gt_pose=None if self.gt_pose is None else self.gt_pose.to(device),
+            instances=None if self.instances is None else self.instances.to(device),
         )
 
     def validate(self, source: str | Path, intrinsics: Intrinsics | None = None) -> "Frame":
@@ -152,6 +156,11 @@ class Frame:
         if self.mask is not None:
             if self.mask.dtype != torch.bool or tuple(self.mask.shape) != (h, w):
                 raise DatasetError(source, f"mask must be bool (H, W)={(h, w)}, got {self.mask.dtype} {tuple(self.mask.shape)}")
+        if self.instances is not None:
+            if self.instances.dtype != torch.int64 or tuple(self.instances.shape) != (h, w):
+                raise DatasetError(source, f"instances must be int64 (H, W)={(h, w)}, got {self.instances.dtype} {tuple(self.instances.shape)}")
+            if bool((self.instances < 0).any()):
+                raise DatasetError(source, "instance ids must be >= 0 (0 = static)")
         if self.gt_pose is not None:
             if tuple(self.gt_pose.shape) != (4, 4) or not torch.isfinite(self.gt_pose).all():
                 raise DatasetError(source, "gt_pose must be a finite 4x4 matrix")

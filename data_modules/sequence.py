@@ -78,7 +78,8 @@ def _count_rule(value: object) -> str:
 
 
 def resize_frame(frame: Frame, width: int, height: int) -> Frame:
-    """Resize a frame: area-averaged colour, nearest-neighbour depth and mask (no mixed depths at edges)."""
+    """Resize a frame: area-averaged colour, nearest-neighbour depth, mask and instance ids (no mixed
+    depths or ids at edges)."""
     if (frame.width, frame.height) == (width, height):
         return frame
     rgb = F.interpolate(frame.rgb.permute(2, 0, 1)[None], size=(height, width), mode="area")[0].permute(1, 2, 0)
@@ -86,7 +87,10 @@ def resize_frame(frame: Frame, width: int, height: int) -> Frame:
     mask = None
     if frame.mask is not None:
         mask = F.interpolate(frame.mask[None, None].float(), size=(height, width), mode="nearest-exact")[0, 0] > 0.5
-    return replace(frame, rgb=rgb.contiguous().clamp(0, 1), depth=depth.contiguous(), mask=mask)
+    instances = None
+    if frame.instances is not None:  # ids up to 2^24 are exact in float32
+        instances = F.interpolate(frame.instances[None, None].float(), size=(height, width), mode="nearest-exact")[0, 0].long()
+    return replace(frame, rgb=rgb.contiguous().clamp(0, 1), depth=depth.contiguous(), mask=mask, instances=instances)
 
 
 class SequenceView(SequenceDataset):

@@ -38,6 +38,7 @@ METRICS_MAY_IMPORT = ("tivne.geometry", "tivne.metrics")
 SLAM_LAYERS: tuple[tuple[str, ...], ...] = (
     ("tivne.slam", "tivne.slam.outputs"),
     ("tivne.slam.tracking",),
+    ("tivne.slam.objects",),
     ("tivne.slam.keyframes", "tivne.slam.trajectory", "tivne.slam.allocation"),
     ("tivne.slam.mapping",),
     ("tivne.slam.state", "tivne.slam.checkpoint"),
@@ -189,3 +190,15 @@ def test_benchmarks_import_no_command_line_module():
     known = set(sources())
     bad = {p.name: sorted(imports_of(p, known) & CLIS) for p in sorted((REPO / "bench").glob("*.py")) if imports_of(p, known) & CLIS}
     assert bad == {}
+
+
+# The object tracking is a component under the per-frame loop (it is ported onto the refactored loop
+# as is): of tivne.slam it uses only the odometry, its pyramids and the run directory.
+OBJECTS_MAY_USE_OF_SLAM = ("tivne.slam.objects", "tivne.slam.tracking.odometry", "tivne.slam.tracking.pyramid", "tivne.slam.tracking.robust", "tivne.slam.outputs")
+
+
+def test_objects_package_uses_only_the_odometry_of_the_loop():
+    assert any(m.startswith("tivne.slam.objects") for m in GRAPH)
+    bad = [f"{m} -> {d}" for m, deps in GRAPH.items() if m.startswith("tivne.slam.objects") for d in deps
+           if d.startswith("tivne.slam") and not d.startswith(OBJECTS_MAY_USE_OF_SLAM)]
+    assert bad == []

@@ -209,6 +209,34 @@ class OdometryConfig(Settings):
 
 
 @dataclass(frozen=True)
+class ObjectsConfig(Settings):
+    """Rigid moving objects (:class:`tivne.slam.objects.ObjectTracker`): track: one SE(3) track per
+    object, written to objects/<id>.txt. source: "dataset" (the frames' instance ids, Co-Fusion
+    mask_id, the synthetic family) or "geometric" (connected, depth-continuous segments of the
+    frame's dynamic mask, identities by overlap under the predicted motion). min_pixels: smaller
+    instances are ignored. levels: odometry pyramid levels on an object's pixels (objects are
+    small: the coarsest level must keep pixels). depth_smoothing: radius (pixels) of the mean filter
+    over the object's own depths before its odometry (0 = off; axial noise biases the object's
+    rotation towards zero, the errors-in-variables effect, on few pixels). keyframe_overlap: a new reference observation when
+    the odometry's overlap with the current one falls below this. min_iou: a segment continues a
+    track when its overlap with the track's predicted mask reaches this. reid_distance: a segment
+    re-identifies a lost track whose predicted centre is this close (m) and whose size agrees
+    within reid_size_ratio. max_gap_s: a track unseen longer is lost (then only re-identified)."""
+
+    section: ClassVar[str] = "objects"
+    track: bool = False
+    source: str = setting("dataset", choices=("dataset", "geometric"))
+    min_pixels: int = setting(200, ge=16)
+    levels: int = setting(2, ge=1, le=4)
+    depth_smoothing: int = setting(1, ge=0, le=4)
+    keyframe_overlap: float = setting(0.85, ge=0, le=1)
+    min_iou: float = setting(0.2, gt=0, le=1)
+    reid_distance: float = setting(0.25, gt=0)
+    reid_size_ratio: float = setting(1.6, ge=1)
+    max_gap_s: float = setting(0.2, gt=0)
+
+
+@dataclass(frozen=True)
 class MappingConfig(Settings):
     """iters: steps per mapping round; first_iters: steps on the first frame alone. rays per step,
     current_share of them from the current frame, the rest split over the picked keyframes. every:
@@ -405,4 +433,5 @@ class ReportConfig(Settings):
 SECTIONS: tuple[type[Settings], ...] = (
     RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, FieldTrackingConfig, OdometryConfig, MappingConfig,
     KeyframeConfig, SamplerConfig, MeshConfig, OutputConfig, AllocationConfig, TrainerConfig, ObjectiveConfig, RunDirConfig,
+    ObjectsConfig,
 )

@@ -311,6 +311,7 @@ class SyntheticSequence(SequenceDataset):
             depth=torch.from_numpy(depth),
             mask=torch.from_numpy(labels > 0),
             gt_pose=self.camera_pose(i),
+            instances=torch.from_numpy(labels.astype(np.int64)),  # k = object_names[k - 1]
         )
         return frame.validate(f"{self.name} frame {i}", self.intrinsics)
 

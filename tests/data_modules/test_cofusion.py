@@ -24,6 +24,7 @@ def _check_round_trip(ds, truth):
         assert f.depth.dtype == torch.float32
         if truth.mask_ids:
             np.testing.assert_array_equal(f.mask.numpy(), truth.mask_ids[i] != 0)
+            np.testing.assert_array_equal(f.instances.numpy(), truth.mask_ids[i])
         np.testing.assert_allclose(f.gt_pose.numpy(), truth.poses[i], atol=1e-9)
         assert f.source == f"Color{truth.numbers[i]:04d}.png"
 

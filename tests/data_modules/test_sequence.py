@@ -69,6 +69,23 @@ def test_view_resize_scales_intrinsics_and_uses_nearest_mask():
     src = base[1].depth
     assert all(bool((src == v).any()) for v in f.depth.flatten())
     assert torch.allclose(f.rgb.mean(), base[1].rgb.mean(), atol=1e-5)  # area averaging keeps the mean
+    assert f.instances is None  # a reader without instance ids keeps working
+
+
+def test_resize_keeps_instance_ids_nearest():
+    from dataclasses import replace
+
+    from data_modules.sequence import resize_frame
+
+    frame = _Ramp(1, width=8, height=6)[0]
+    ids = torch.zeros(6, 8, dtype=torch.int64)
+    ids[:, :4], ids[:3, 6:] = 7, 300
+    small = resize_frame(replace(frame, instances=ids), 4, 3)
+    small.validate("resized")
+    expected = torch.zeros(3, 4, dtype=torch.int64)
+    expected[:, :2] = 7
+    expected[:1, 3:] = 300  # nearest-exact: output row 1 samples input row 3 (outside the 300 block)
+    assert torch.equal(small.instances, expected)
 
 
 def test_view_depth_truncation():

@@ -40,8 +40,20 @@ def test_reader_settings_are_arguments_of_the_reader(target):
 
 @pytest.mark.parametrize("path", sorted((CONF / "masks").glob("*.yaml")), ids=lambda p: p.stem)
 def test_every_mask_preset_is_an_allowed_provider(path):
-    node = OmegaConf.to_container(OmegaConf.load(path).provider, throw_on_missing=False)
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose("config", overrides=[f"masks={path.stem}"])
+    node = OmegaConf.to_container(cfg.masks.provider, throw_on_missing=False)
     assert check_masks_node(node) in MASK_PROVIDERS
+
+
+def test_the_two_provider_allowlists_agree():
+    """The run-folder check (tivne.readers, below the masks layer) and the settings registry
+    (tivne.masks.settings) name the same providers."""
+    from tivne.masks.settings import PROVIDERS
+
+    assert set(PROVIDERS) == set(MASK_PROVIDERS)
 
 
 @pytest.mark.parametrize("node, message", [

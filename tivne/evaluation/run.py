@@ -21,6 +21,7 @@ from data_modules.tables import read_tum_trajectory
 from tivne.config import ConfigError, MeshConfig, MeshEvalSettings, RenderConfig
 from tivne.evaluation.ground_truth import GroundTruth, as_view, ground_truth_of
 from tivne.evaluation.images import image_metrics, null_images, render_frames
+from tivne.evaluation.objects import object_section
 from tivne.evaluation.surfaces import flatten_mesh_metrics, mesh_time_metrics
 from tivne.field.networks import TimeVaryingField
 from tivne.meshing import TIME_TOLERANCE_S, extract_mesh, select_mesh_times
@@ -239,7 +240,9 @@ def evaluate_run(
         device: where to load the field (default cuda when available).
     Returns:
         ATE keys (``ate_*``, ``ate_partial``, ``sequence_frames``), image keys (``psnr_db``, ``ssim``,
-        ...), and for a :class:`GroundTruth` dataset the 4D mesh keys ``mesh_t{t:.2f}_*`` and their
+        ...), per-object trajectory keys (``object_<name>_ate_m``, ``object_<name>_rot_deg``, ...,
+        :func:`tivne.evaluation.objects.object_section`) for a run with objects/, and for a
+        :class:`GroundTruth` dataset the 4D mesh keys ``mesh_t{t:.2f}_*`` and their
         summaries; nulls come with a ``*_reason`` key.
     Raises:
         FileNotFoundError: no run dir. ConfigError: a mesh time outside the recorded range (checked
@@ -255,6 +258,7 @@ def evaluate_run(
     result.update(image_section(record, view, render, settings))
     gt = ground_truth_of(view)
     to_world, reason = world_from_slam(frame, view, ate)
+    result.update(object_section(record.run, view, to_world))
     if gt is None:
         reason = f"dataset {view.name} has no ground-truth geometry"
     elif not times:

@@ -13,6 +13,7 @@ allocate -> record. Each component owns its settings and its state:
     mapper      Mapper: the map optimiser, rounds over the current frame + the policy's window
     allocator   VoxelAllocator: where the map grows
     trajectory  Trajectory: every frame's pose, relative to its keyframe (PoseBook reads both)
+    objects     ObjectTracker (optional): one SE(3) track per moving object, by the same odometry
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from tivne.render.rays import View
 from tivne.slam.allocation import VoxelAllocator
 from tivne.slam.keyframes import KeyframePolicy, KeyframeStore, view_from_state, view_state
 from tivne.slam.mapping import Mapper, final_pass
+from tivne.slam.objects import ObjectTracker
 from tivne.slam.state import FrameReport, Timers
 from tivne.slam.tracking import Tracker
 from tivne.slam.tracking.field import frozen
@@ -51,8 +53,10 @@ class SlamLoop:
         allocator: VoxelAllocator,
         masks: MaskProvider | None = None,
         seed: int = 0,
+        objects: ObjectTracker | None = None,
     ) -> None:
         self.field, self.intrinsics = field, intrinsics
+        self.objects = objects  # per-object rigid tracks (objects.track), or None
         self.tracker, self.mapper, self.keyframes, self.policy = tracker, mapper, keyframes, policy
         self.allocator = allocator
         self.masks = masks or NoMasks()
@@ -91,9 +95,11 @@ class SlamLoop:
         result = self.tracker.track(k, frame, tau, mask, self.field, self.poses, self.K, self.last_mapped_tau, self.generator)
         view = View(k, tau, frame.rgb, frame.depth, mask, result.pose)
         keyframe = new_reference = False
-        mapping = None
+        mapping, objects = None, []
         if not result.lost:  # a frame whose pose is not known is never mapped
             view, keyframe, new_reference, mapping = self._integrate(k, view, frame, result)
+            if self.objects is not None:  # each moving object's SE(3), the camera pose known
+                objects = self.objects.observe(frame, view.pose, tau, view.dynamic)
         latest = self.keyframes.frame_ids()[-1]
         self.trajectory.append(frame.timestamp, view.pose, latest, self.keyframes.pose(latest), frame.gt_pose)
         if not result.lost:
@@ -101,7 +107,8 @@ class SlamLoop:
         elapsed = time.perf_counter() - start
         self.timers.per_frame.append(elapsed)
         self.between_frames = True
-        return FrameReport(k, float(frame.timestamp), tau, result, view, keyframe, new_reference, mapping, elapsed, self.field.grid.num_voxels)
+        return FrameReport(k, float(frame.timestamp), tau, result, view, keyframe, new_reference, mapping, elapsed,
+                           self.field.grid.num_voxels, tuple(objects))
 
     def _integrate(self, k: int, view: View, frame: Frame, result) -> tuple[View, bool, bool, Any]:
         """Everything after a successful track: the mask, keyframes, mapping, voxels, the odometry reference."""
@@ -165,6 +172,7 @@ class SlamLoop:
             "last_view": None if self.last_view is None else view_state(self.last_view),
             "timers": dataclasses.asdict(self.timers),
             "generator": self.generator.get_state(),
+            "objects": None if self.objects is None else self.objects.state_dict(),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -180,3 +188,5 @@ class SlamLoop:
         self.final_pass_done = bool(state["final_pass_done"])
         self.timers = Timers(**state["timers"])
         self.generator.set_state(state["generator"].cpu())
+        if self.objects is not None and state.get("objects") is not None:
+            self.objects.load_state_dict(state["objects"])

@@ -6,6 +6,7 @@
       metrics.json               flat snake_case keys with units (merged, never truncated)
       checkpoints/slam.pt        the field, its construction arguments and the trajectory
       meshes/mesh_t<t>.ply       meshes at chosen timestamps (seconds, 3 decimals)
+      objects/<id>.txt           TUM format, one moving object's object-to-world poses (``objects.track``)
       renders/frame<k>_<x>.png   rendered vs observed images
       tb/                        TensorBoard events (per-frame scalars, images, the meshes and
                                  the final metrics as hparams)
@@ -64,6 +65,7 @@ class RunDir:
     METRICS = "metrics.json"
     CHECKPOINT = "checkpoints/slam.pt"
     MESHES = "meshes"
+    OBJECTS = "objects"
     RENDERS = "renders"
     TENSORBOARD = "tb"
     REPORT = "report.html"
@@ -101,7 +103,7 @@ class RunDir:
         """The results this folder holds already (trajectory, metrics, checkpoints, meshes,
         renders); .hydra/, logs and TensorBoard events alone are not results."""
         found = [p for p in (self.trajectory, self.metrics) if p.exists()]
-        for folder in (self.checkpoint.parent, self.root / self.MESHES, self.root / self.RENDERS):
+        for folder in (self.checkpoint.parent, self.root / self.MESHES, self.root / self.RENDERS, self.root / self.OBJECTS):
             if folder.is_dir() and any(folder.iterdir()):
                 found.append(folder)
         return found
@@ -134,6 +136,16 @@ class RunDir:
     def mesh_path(self, timestamp: float) -> Path:
         """meshes/mesh_t{t:.3f}.ply for a mesh at ``timestamp`` seconds."""
         return self.root / self.MESHES / f"mesh_t{timestamp:.3f}.ply"
+
+    def object_path(self, object_id: int) -> Path:
+        """objects/<id>.txt: the TUM trajectory (object-to-world) of tracked object ``object_id``."""
+        return self.root / self.OBJECTS / f"{int(object_id)}.txt"
+
+    def object_paths(self) -> dict[int, Path]:
+        """{id: objects/<id>.txt} of the object trajectories the run wrote."""
+        folder = self.root / self.OBJECTS
+        found = folder.glob("*.txt") if folder.is_dir() else []
+        return {int(p.stem): p for p in sorted(found) if p.stem.isdigit()}
 
     def render_path(self, frame_id: int, name: str) -> Path:
         return self.root / self.RENDERS / f"frame{frame_id:05d}_{name}.png"

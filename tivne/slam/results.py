@@ -41,6 +41,9 @@ class RunWriter:
             self.save_checkpoint(loop)
 
     def write_trajectory(self, loop: SlamLoop) -> Path:
+        """trajectory.txt, and objects/<id>.txt of every object track."""
+        if loop.objects is not None:
+            loop.objects.write(self.run)
         return self.run.write_trajectory(loop.trajectory.timestamps(), loop.poses.all())
 
     def save_checkpoint(self, loop: SlamLoop, resumable: bool = True) -> Path:
@@ -135,7 +138,7 @@ def run_metrics(loop: SlamLoop) -> dict[str, Any]:
         "frames_without_tracking": counts.without_tracking,
         "tracking_recovered": counts.recovered,
         "checkpoint": RunDir.CHECKPOINT,
-    }
+    } | (loop.objects.metrics() if loop.objects is not None else {})
     result = loop.ate()
     if result is not None:
         metrics.update(result.as_metrics())

@@ -31,6 +31,7 @@ from tivne.config import (
     MappingConfig,
     MeshConfig,
     ObjectiveConfig,
+    ObjectsConfig,
     OdometryConfig,
     OutputConfig,
     RenderConfig,
@@ -54,6 +55,7 @@ from tivne.slam.checkpoint import load_resume_state, set_global_rng_state
 from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
 from tivne.slam.loop import SlamLoop
 from tivne.slam.mapping import Mapper
+from tivne.slam.objects import ObjectTracker
 from tivne.slam.outputs import RunDir, check_run_dir, tensorboard_hparams
 from tivne.slam.results import RunWriter
 from tivne.slam.system import TivNeSLAM, restore
@@ -84,6 +86,7 @@ class TrainSettings:
     allocation: AllocationConfig
     trainer: TrainerConfig
     objective: ObjectiveConfig
+    objects: ObjectsConfig
 
     @classmethod
     def from_config(cls, cfg: DictConfig) -> "TrainSettings":
@@ -106,6 +109,7 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
         allocator=VoxelAllocator(s.allocation),
         masks=masks,
         seed=seed,
+        objects=ObjectTracker(s.objects, intrinsics.K(), s.odometry) if s.objects.track else None,
     )
 
 

@@ -10,6 +10,7 @@ import torch
 
 from tivne.render.rays import View
 from tivne.slam.mapping import MapRound
+from tivne.slam.objects.tracker import ObjectObservation
 from tivne.slam.tracking import TrackResult
 
 
@@ -25,7 +26,8 @@ class Timers:
 class FrameReport:
     """One processed frame: its stream index, timestamp (s) and field time τ; the tracking result;
     whether it became a keyframe and the odometry reference; the mapping round it ran (None: not
-    mapped); the view as mapped (its pose and final mask); seconds spent; the map's size after it."""
+    mapped); the view as mapped (its pose and final mask); seconds spent; the map's size after it;
+    what the object tracker made of each moving object (empty without ``objects.track``)."""
 
     index: int
     timestamp: float
@@ -37,6 +39,7 @@ class FrameReport:
     mapping: MapRound | None
     seconds: float
     voxels: int
+    objects: tuple[ObjectObservation, ...] = ()
 
     @property
     def pose(self) -> torch.Tensor:
@@ -49,4 +52,6 @@ class FrameReport:
         out["track/new_reference"] = float(self.new_reference)
         if self.mapping is not None:
             out |= {f"map/{k}": v for k, v in self.mapping.scalars().items()}
+        if self.objects:
+            out["objects/observed"] = float(len(self.objects))
         return out | {"perf/s_per_frame": self.seconds, "map/voxels": float(self.voxels)}

@@ -42,6 +42,7 @@ def test_depth_lies_on_the_scene_and_labels_name_the_surface(busy, i):
     assert bool((busy.sdf(o + 0.98 * (p - o), t) > 0).all())  # the ray is free up to the surface
     labels = busy.labels(i).reshape(-1)
     assert torch.equal(labels > 0, f.mask.reshape(-1))
+    assert torch.equal(f.instances.reshape(-1), labels)  # the frame carries the instance ids
     placed = {q.obj.name: q for q in busy.placed(t)}
     for k, name in enumerate(busy.object_names):  # each object's pixels lie on that object, all others don't
         q = placed[name]

@@ -1,0 +1,91 @@
+"""ObjectTrack: SE(3) poses per τ, SLERP + lerp between observations, the box, state_dict; the motion math."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from tivne.geometry import invert_pose, se3_exp
+from tivne.slam.objects import ObjectTrack
+from tivne.slam.objects.motion import camera_in_object, constant_velocity, interpolate_se3, object_pose, odometry_init
+
+
+def _pose(*xi) -> torch.Tensor:
+    return se3_exp(torch.tensor(xi, dtype=torch.float64))
+
+
+def _rz(deg: float, t=(0.0, 0.0, 0.0)) -> torch.Tensor:
+    T = torch.eye(4, dtype=torch.float64)
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    T[:2, :2] = torch.tensor([[c, -s], [s, c]], dtype=torch.float64)
+    T[:3, 3] = torch.tensor(t, dtype=torch.float64)
+    return T
+
+
+def test_pose_at_interpolates_rotation_and_translation_and_holds_the_ends():
+    A, B = _rz(10, (0.0, 0.0, 1.0)), _rz(50, (1.0, 2.0, 1.0))
+    track = ObjectTrack.from_poses(4, [0.5, 1.5], torch.stack([A, B]), name="box")
+    assert track.observed_taus() == [0.5, 1.5] and len(track) == 2 and track.name == "box"
+    mid = track.pose_at(1.0)
+    torch.testing.assert_close(mid, _rz(30, (0.5, 1.0, 1.0)), atol=1e-12, rtol=0)  # angle and position halfway
+    q = track.pose_at(0.75)
+    torch.testing.assert_close(q, _rz(20, (0.25, 0.5, 1.0)), atol=1e-12, rtol=0)
+    torch.testing.assert_close(track.pose_at(0.5), A)
+    torch.testing.assert_close(track.pose_at(-3.0), A)  # held, never extrapolated
+    torch.testing.assert_close(track.pose_at(9.0), B)
+    assert track.pose_at(1.0).dtype == torch.float64 and track.pose_at(1.0).shape == (4, 4)
+
+
+def test_add_keeps_order_and_replaces_the_same_tau():
+    track = ObjectTrack(1)
+    with pytest.raises(ValueError, match="no observed pose"):
+        track.pose_at(0.0)
+    track.add(2.0, _rz(20))
+    track.add(1.0, _rz(10))
+    track.add(2.0, _rz(40))
+    assert track.observed_taus() == [1.0, 2.0]
+    torch.testing.assert_close(track.pose_at(2.0), _rz(40))
+    assert track.observed_near(1.9, 0.15) and not track.observed_near(1.5, 0.1)
+    with pytest.raises(ValueError, match="finite"):
+        track.add(3.0, torch.full((4, 4), float("nan")))
+
+
+def test_box_and_state_dict_round_trip():
+    track = ObjectTrack.from_poses(7, [0.0, 1.0], torch.stack([_rz(0), _rz(90, (1, 0, 0))]), name=None)
+    assert track.box is None
+    track.grow_box(torch.tensor([[0.0, 0.0, 0.0], [1.0, -1.0, 2.0]]))
+    track.grow_box(torch.tensor([[-1.0, 0.5, 0.0], [float("nan"), 9.0, 9.0]]))  # non-finite rows ignored
+    torch.testing.assert_close(track.box, torch.tensor([[-1.0, -1.0, 0.0], [1.0, 0.5, 2.0]], dtype=torch.float64))
+    copy = ObjectTrack.from_state_dict(track.state_dict())
+    assert (copy.object_id, copy.name, copy.observed_taus()) == (7, None, [0.0, 1.0])
+    torch.testing.assert_close(copy.poses(), track.poses())
+    torch.testing.assert_close(copy.box, track.box)
+    torch.testing.assert_close(copy.pose_at(0.5), track.pose_at(0.5))
+
+
+def test_geodesic_interpolation_and_constant_velocity():
+    A, xi = _pose(0.1, -0.2, 0.3, 0.2, 0.1, -0.3), torch.tensor([0.3, 0.1, -0.2, 0.0, 0.4, 0.2], dtype=torch.float64)
+    B = A @ se3_exp(xi)
+    torch.testing.assert_close(interpolate_se3(A, B, 0.0), A)
+    torch.testing.assert_close(interpolate_se3(A, B, 1.0), B)
+    torch.testing.assert_close(interpolate_se3(A, B, 0.25), A @ se3_exp(0.25 * xi))
+    # A constant world-frame motion per unit time is continued exactly, at any rate.
+    step = se3_exp(xi * 0.1)
+    poses = torch.stack([A, step @ A])
+    torch.testing.assert_close(constant_velocity([0.0, 1.0], poses, 3.0), step @ step @ step @ A)
+    torch.testing.assert_close(constant_velocity([0.0], poses[:1], 3.0), A)  # one observation: held
+    torch.testing.assert_close(constant_velocity([0.0, 1.0], poses, 9.0, max_gap=2.0), poses[1])
+
+
+def test_object_pose_inverts_the_object_frame_odometry():
+    """T_wo_k = T_wc_k · T_ref_cur⁻¹ · C_r⁻¹ for the T_ref_cur = C_r⁻¹ C_k the object-pixel odometry sees."""
+    T_wc_r, T_wc_k = _pose(0.1, 0.2, 0.0, 0.05, -0.1, 0.2), _pose(0.3, 0.1, -0.1, 0.0, 0.2, 0.1)
+    T_wo_r, T_wo_k = _pose(1.0, 0.5, 2.0, 0.3, 0.0, 0.1), _pose(1.2, 0.4, 2.1, 0.1, 0.5, -0.2)
+    C_r, C_k = camera_in_object(T_wo_r, T_wc_r), camera_in_object(T_wo_k, T_wc_k)
+    T_ref_cur = invert_pose(C_r) @ C_k
+    torch.testing.assert_close(object_pose(T_wc_k, T_ref_cur, C_r), T_wo_k)
+    torch.testing.assert_close(odometry_init(T_wo_k, T_wc_k, C_r), T_ref_cur)
+    # A static object: the odometry sees the camera's own motion.
+    torch.testing.assert_close(odometry_init(T_wo_r, T_wc_k, C_r), invert_pose(T_wc_r) @ T_wc_k)

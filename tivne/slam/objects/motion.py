@@ -1,0 +1,75 @@
+"""One rigid object's motion from the camera odometry on its pixels (pure functions).
+
+Frames and poses, all (4, 4) float64:
+
+* T_wc_k: camera k to world (the SLAM's tracked camera, known here);
+* T_wo_k: object to world at frame k (what an :class:`ObjectTrack` holds);
+* C_k = T_wo_k⁻¹ · T_wc_k: camera k to *object*, the camera's pose in a world where the object
+  stands still.
+
+Seen from its own frame the object is a static scene, so the existing dense odometry on the
+object's pixels alone (reference = the object's last keyframe observation r, current = frame k)
+estimates exactly the camera motion of that static scene: it returns T_ref_cur with
+``C_k = C_r · T_ref_cur`` (the odometry's ``c2w_cur = c2w_ref @ T_ref_cur``, with "w" = object).
+Hence, with the camera pose known,
+
+    T_wo_k = T_wc_k · C_k⁻¹ = T_wc_k · T_ref_cur⁻¹ · C_r⁻¹ = T_wc_k · T_ref_cur⁻¹ · T_wc_r⁻¹ · T_wo_r,
+
+and the initial guess of T_ref_cur for a predicted object pose T̂_wo_k is C_r⁻¹ · T̂_wo_k⁻¹ · T_wc_k.
+A static object (T_wo_k = T_wo_r) gives T_ref_cur = T_wc_r⁻¹ T_wc_k, the camera's own motion.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from tivne.geometry import invert_pose, se3_exp, se3_log
+
+
+def camera_in_object(T_wo: torch.Tensor, T_wc: torch.Tensor) -> torch.Tensor:
+    """C = T_wo⁻¹ · T_wc (4, 4): camera-to-object, the camera pose seen from the object."""
+    return invert_pose(T_wo.double()) @ T_wc.double()
+
+
+def object_pose(T_wc_cur: torch.Tensor, T_ref_cur: torch.Tensor, C_ref: torch.Tensor) -> torch.Tensor:
+    """T_wo_k = T_wc_k · T_ref_cur⁻¹ · C_r⁻¹ (4, 4) float64 (see the module docstring).
+
+    Args:
+        T_wc_cur: (4, 4) the current camera-to-world pose.
+        T_ref_cur: (4, 4) the odometry on the object's pixels (current -> reference camera).
+        C_ref: (4, 4) camera-to-object pose of the reference observation.
+    """
+    return T_wc_cur.double() @ invert_pose(T_ref_cur.double()) @ invert_pose(C_ref.double())
+
+
+def odometry_init(T_wo_pred: torch.Tensor, T_wc_cur: torch.Tensor, C_ref: torch.Tensor) -> torch.Tensor:
+    """The T_ref_cur (4, 4) that a predicted object pose T̂_wo_k implies: C_r⁻¹ · T̂_wo_k⁻¹ · T_wc_k."""
+    return invert_pose(C_ref.double()) @ camera_in_object(T_wo_pred, T_wc_cur)
+
+
+def constant_velocity(taus: list[float], poses: torch.Tensor, tau: float, max_gap: float | None = None) -> torch.Tensor:
+    """Predicted object-to-world pose (4, 4) at ``tau`` from the last two observations.
+
+    The world-frame motion of the last step, Δ = T_last · T_prev⁻¹, is continued at the same rate:
+    T̂ = exp((τ − τ_last)/(τ_last − τ_prev) · log Δ) · T_last. One observation, or a last step or a
+    gap to ``tau`` longer than ``max_gap``: the last pose is held (a velocity that old is a guess).
+
+    Args:
+        taus: increasing observation times (at least one). poses: (N, 4, 4) at ``taus``.
+    """
+    last = poses[-1].double()
+    if len(taus) < 2:
+        return last.clone()
+    step, ahead = taus[-1] - taus[-2], tau - taus[-1]
+    if step <= 0 or (max_gap is not None and (step > max_gap or ahead > max_gap)):
+        return last.clone()
+    xi = se3_log((last @ invert_pose(poses[-2].double()))[None])[0]
+    return se3_exp(xi * (ahead / step)) @ last
+
+
+def interpolate_se3(A: torch.Tensor, B: torch.Tensor, s: float) -> torch.Tensor:
+    """The pose (4, 4) a fraction ``s`` in [0, 1] along the geodesic from A to B (body frame):
+    A · exp(s · log(A⁻¹ B)); s = 0 gives A, s = 1 gives B."""
+    A, B = A.double(), B.double()
+    return A @ se3_exp(float(s) * se3_log((invert_pose(A) @ B)[None])[0])
+

@@ -1,0 +1,322 @@
+"""ObjectTracker: one rigid SE(3) track per moving object, frame by frame, with the camera known.
+
+Per frame: the object instances (:mod:`tivne.slam.objects.instances`), then for each the existing
+dense odometry (:func:`tivne.slam.tracking.odometry.track_pyramids`, photometric + point-to-plane, robust,
+coarse to fine) on that object's pixels only, against the object's own last keyframe observation,
+turned into an object-to-world pose (:mod:`tivne.slam.objects.motion` derives it). A constant-
+velocity prediction starts the odometry; an object seen again after more than ``max_gap_s`` starts
+from its last pose moved so that its last observed points' centre lands on the new observation's.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from data_modules.frame import Frame
+from data_modules.tables import write_tum_trajectory
+from tivne.config import ObjectsConfig, OdometryConfig
+from tivne.geometry import backproject_depth, transform_points
+from tivne.slam.objects.instances import (
+    dataset_instances,
+    erode,
+    extent,
+    greedy_match,
+    iou,
+    mask_segments,
+    projected_mask,
+    smooth_depth,
+    world_points,
+)
+from tivne.slam.objects.motion import camera_in_object, constant_velocity, object_pose, odometry_init
+from tivne.slam.objects.track import ObjectTrack
+from tivne.slam.outputs import RunDir
+from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
+from tivne.slam.tracking.pyramid import PyramidLevel
+
+# A track is written once it has this many observed poses (one-frame segments are clutter).
+MIN_WRITTEN_POSES = 3
+# The least share of an object's pixels its reference must see for a pose to count.
+MIN_OVERLAP = 0.1
+# Keyframe observations kept per object (the oldest goes first).
+MAX_REFERENCES = 12
+# A keyframe is reused when it saw the object from within this angle of the predicted view.
+REUSE_ANGLE_DEG = 12.0
+
+
+@dataclass(frozen=True)
+class ObjectObservation:
+    """What the tracker made of one object in one frame.
+
+    pose: (4, 4) float64 object-to-world (the prediction when ``ok`` is False; then it is not
+    recorded in the track). new_track: the object's first frame. reidentified: a lost track taken
+    up again. new_reference: this frame became the object's reference observation. overlap,
+    inlier_ratio: the odometry's (nan on a new track).
+    """
+
+    object_id: int
+    tau: float
+    timestamp: float
+    pose: torch.Tensor
+    pixels: int
+    ok: bool
+    new_track: bool = False
+    reidentified: bool = False
+    new_reference: bool = False
+    overlap: float = float("nan")
+    inlier_ratio: float = float("nan")
+
+
+@dataclass
+class _Reference:
+    """An object's keyframe observation: its pyramid (object pixels only) and camera-to-object pose."""
+
+    pyramid: list[PyramidLevel]
+    C: torch.Tensor
+    tau: float
+
+
+@dataclass
+class _Live:
+    """Per-object tracking state: its keyframe observations (oldest first, at most
+    ``MAX_REFERENCES``), the last observation's object-frame points (M, 3), their size (m) and time (s)."""
+
+    references: list[_Reference]
+    points: torch.Tensor
+    size: float
+    last_time: float
+
+    @property
+    def reference(self) -> _Reference | None:
+        return self.references[-1] if self.references else None
+
+
+def view_direction(C: torch.Tensor) -> torch.Tensor:
+    """(3,) unit direction from the object origin to the camera of camera-to-object pose C (4, 4)."""
+    return C[:3, 3] / C[:3, 3].norm().clamp_min(1e-9)
+
+
+def pick_reference(references: list[_Reference], C_pred: torch.Tensor, max_angle_deg: float) -> _Reference:
+    """The oldest keyframe that saw the object from within ``max_angle_deg`` of the predicted view
+    and from a distance within 25 %, else the newest: tracking against the oldest usable view, not
+    a chain of the latest ones, keeps the object's drift from growing with every new keyframe."""
+    d_pred, dist_pred = view_direction(C_pred), float(C_pred[:3, 3].norm())
+    cos_max = float(np.cos(np.radians(max_angle_deg)))
+    for ref in references[:-1]:
+        ratio = float(ref.C[:3, 3].norm()) / max(dist_pred, 1e-9)
+        if float(view_direction(ref.C) @ d_pred) >= cos_max and 0.8 <= ratio <= 1.25:
+            return ref
+    return references[-1]
+
+
+class ObjectTracker:
+    """Tracks every moving object of a stream (see the module docstring).
+
+    Args:
+        config: the ``objects`` section. K: (3, 3) camera matrix. odometry: the camera odometry's
+            settings (the object odometry uses them with ``config.levels`` levels).
+        names: dataset names of dataset instance ids (e.g. the synthetic family's object names).
+    """
+
+    def __init__(self, config: ObjectsConfig, K: torch.Tensor, odometry: OdometryConfig = OdometryConfig(),
+                 names: dict[int, str] | None = None) -> None:
+        self.cfg = config
+        self.K = K.float()
+        self.odo = replace(odometry, levels=config.levels)
+        self.names = dict(names or {})
+        self.tracks: dict[int, ObjectTrack] = {}
+        self.stamps: dict[int, dict[float, float]] = {}  # per track: τ -> timestamp [s]
+        self.live: dict[int, _Live] = {}
+        self.next_id = 1
+        self.seconds, self.frames = 0.0, 0
+
+    # ---- the per-frame step -------------------------------------------------------------------
+    def instances_of(self, frame: Frame, dynamic: torch.Tensor | None) -> torch.Tensor | None:
+        """What :meth:`step` reads for ``objects.source``: the frame's instance ids (dataset) or its
+        dynamic mask ``dynamic`` (H, W) bool (geometric)."""
+        return frame.instances if self.cfg.source == "dataset" else dynamic
+
+    def observe(self, frame: Frame, camera_pose: torch.Tensor, tau: float, dynamic: torch.Tensor | None) -> list[ObjectObservation]:
+        """:meth:`step` on :meth:`instances_of`, timed (``seconds``, ``frames``: the objects' cost)."""
+        start = time.perf_counter()
+        out = self.step(frame, camera_pose, tau, self.instances_of(frame, dynamic))
+        self.seconds += time.perf_counter() - start
+        self.frames += 1
+        return out
+
+    def metrics(self) -> dict[str, Any]:
+        """metrics.json keys of the tracking itself: tracks written, the objects' s/frame."""
+        return {"objects_written": len(self.written_tracks()),
+                "objects_s_per_frame": self.seconds / self.frames if self.frames else None}
+
+    def step(self, frame: Frame, camera_pose: torch.Tensor, tau: float, instances: torch.Tensor | None) -> list[ObjectObservation]:
+        """Observe the objects of one frame whose camera-to-world pose ``camera_pose`` (4, 4) is known.
+
+        ``instances``: (H, W) int64 dataset instance ids (``objects.source=dataset``) or (H, W) bool
+        dynamic mask (``geometric``); None: no object this frame.
+        """
+        if instances is None:
+            return []
+        T_wc = camera_pose.detach().double().cpu()
+        depth = frame.depth.cpu()
+        if instances.dtype == torch.bool:
+            segments = mask_segments(instances.cpu(), depth, self.cfg.min_pixels)
+            found = self._associate(segments, frame, T_wc, tau)
+        else:
+            found = {(k, False): m for k, m in dataset_instances(instances.cpu(), depth, self.cfg.min_pixels).items()}
+        return [self._observe(oid, mask, frame, T_wc, tau, reid) for (oid, reid), mask in sorted(found.items())]
+
+    def _observe(self, oid: int, mask: torch.Tensor, frame: Frame, T_wc: torch.Tensor, tau: float, reid: bool) -> ObjectObservation:
+        inner = erode(mask, 1)
+        inner = inner if int(inner.sum()) >= self.cfg.min_pixels // 2 else mask
+        rgb, depth = frame.rgb.cpu(), frame.depth.cpu()
+        pyramid = frame_pyramid(rgb, smooth_depth(depth, inner, self.cfg.depth_smoothing), self.K, self.odo, ~inner)
+        pixels, t = int(mask.sum()), float(frame.timestamp)
+        if oid not in self.tracks:
+            return self._start(oid, inner, pyramid, depth, T_wc, tau, t, pixels)
+        track, live = self.tracks[oid], self.live.get(oid)
+        T_pred = self._predict(oid, inner, depth, T_wc, tau, t)
+        if live is None or live.reference is None:  # resumed: no reference pyramid kept
+            self._new_reference(oid, inner, pyramid, depth, T_wc, T_pred, tau, t)
+            return ObjectObservation(oid, tau, t, T_pred, pixels, False, reidentified=reid, new_reference=True)
+        ref = pick_reference(live.references, camera_in_object(T_pred, T_wc), REUSE_ANGLE_DEG)
+        res = track_pyramids(ref.pyramid, pyramid, odometry_init(T_pred, T_wc, ref.C), self.odo)
+        if not self._good(res):
+            if t - live.last_time > self.cfg.max_gap_s:  # back after a gap and lost: restart from the prediction
+                self._new_reference(oid, inner, pyramid, depth, T_wc, T_pred, tau, t)
+            return ObjectObservation(oid, tau, t, T_pred, pixels, False, reidentified=reid,
+                                     overlap=res.overlap, inlier_ratio=res.inlier_ratio)
+        T_wo = object_pose(T_wc, res.T_ref_cur, ref.C)
+        track.add(tau, T_wo)
+        self.stamps[oid][tau] = t
+        new_ref = res.overlap < self.cfg.keyframe_overlap and ref is live.reference
+        self._remember(oid, inner, depth, T_wc, T_wo, t, pyramid if new_ref else None, tau)
+        return ObjectObservation(oid, tau, t, T_wo, pixels, True, reidentified=reid, new_reference=new_ref,
+                                 overlap=res.overlap, inlier_ratio=res.inlier_ratio)
+
+    def _good(self, res: OdometryResult) -> bool:
+        """The object odometry is usable: enough consistent pairs overlapping by MIN_OVERLAP (not
+        the camera's overlap or pose_std thresholds: an object entering the view grows by more than
+        its reference shows, and on few pixels σ is larger than a whole frame's)."""
+        o = self.odo
+        return res.num_valid >= o.min_correspondences and res.overlap >= MIN_OVERLAP and res.inlier_ratio >= o.min_inlier_ratio
+
+    def _start(self, oid, mask, pyramid, depth, T_wc, tau, t, pixels) -> ObjectObservation:
+        """A new track: the object frame has the world's axes and its origin at the centre of the
+        first observed points."""
+        T_wo = torch.eye(4, dtype=torch.float64)
+        T_wo[:3, 3] = world_points(mask, depth, self.K, T_wc).mean(0)
+        self.tracks[oid] = ObjectTrack(oid, self.names.get(oid))
+        self.tracks[oid].add(tau, T_wo)
+        self.stamps[oid] = {tau: t}
+        self.next_id = max(self.next_id, oid + 1)
+        self._remember(oid, mask, depth, T_wc, T_wo, t, pyramid, tau)
+        return ObjectObservation(oid, tau, t, T_wo, pixels, True, new_track=True, new_reference=True)
+
+    def _new_reference(self, oid, mask, pyramid, depth, T_wc, T_wo, tau, t) -> None:
+        self._remember(oid, mask, depth, T_wc, T_wo, t, pyramid, tau)
+
+    def _remember(self, oid, mask, depth, T_wc, T_wo, t, pyramid, tau) -> None:
+        """Keep the observation's object-frame points (and, with ``pyramid``, make it the reference)."""
+        C = camera_in_object(T_wo, T_wc)
+        cam = backproject_depth(depth, self.K)[mask & (depth > 0)].double()
+        pts = transform_points(C, cam[:: max(1, len(cam) // 2000)])
+        if len(pts) >= 10:  # the box from the 1-99 % range: silhouette pixels may sit on the background
+            lo, hi = torch.quantile(pts, 0.01, dim=0), torch.quantile(pts, 0.99, dim=0)
+            self.tracks[oid].grow_box(torch.stack([lo, hi]))
+        refs = list(self.live[oid].references) if oid in self.live else []
+        if pyramid is not None:
+            refs = (refs + [_Reference(pyramid, C, tau)])[-MAX_REFERENCES:]
+        self.live[oid] = _Live(refs, pts, extent(pts), t)
+
+    def _predict(self, oid: int, mask: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float) -> torch.Tensor:
+        """Constant velocity (from the last two observations, when they were no more than
+        ``max_gap_s`` apart); after a gap that pose moved so the last observed points' centre lands
+        on the centre of this observation (the rotation still carried on at the last rate)."""
+        track, live = self.tracks[oid], self.live.get(oid)
+        taus, poses = track.observed_taus(), track.poses()
+        steady = len(taus) >= 2 and self.stamps[oid][taus[-1]] - self.stamps[oid][taus[-2]] <= self.cfg.max_gap_s
+        T = constant_velocity(taus, poses, tau) if steady else poses[-1].clone()
+        if live is not None and t - live.last_time <= self.cfg.max_gap_s:
+            return T
+        if live is not None and len(live.points):
+            centre_now = world_points(mask, depth, self.K, T_wc).mean(0)
+            T[:3, 3] += centre_now - transform_points(T, live.points.mean(0, keepdim=True))[0]
+        return T
+
+    # ---- identities from geometric segments ---------------------------------------------------
+    def _associate(self, segments: list[torch.Tensor], frame: Frame, T_wc: torch.Tensor, tau: float) -> dict[tuple[int, bool], torch.Tensor]:
+        """{(track id, re-identified): mask}: segments matched to followed tracks by the IoU of the
+        track's last points moved by its predicted motion; the rest re-identify a lost track of
+        similar size predicted near them, or start a track."""
+        t, depth, shape = float(frame.timestamp), frame.depth.cpu(), tuple(frame.depth.shape)
+        followed = [k for k, lv in self.live.items() if t - lv.last_time <= self.cfg.max_gap_s]
+        scores = np.zeros((len(followed), len(segments)))
+        for i, k in enumerate(followed):
+            T_pred = self._predict(k, segments[0] if segments else None, depth, T_wc, tau, t)
+            footprint = projected_mask(transform_points(T_pred, self.live[k].points), T_wc, self.K, shape)
+            scores[i] = [iou(footprint, s) for s in segments]
+        out, taken = {}, set()
+        for i, j in greedy_match(scores, self.cfg.min_iou):
+            out[(followed[i], False)] = segments[j]
+            taken.add(j)
+        for j, seg in enumerate(segments):
+            if j in taken:
+                continue
+            k = self._reidentify(seg, depth, T_wc, tau, set(followed) | {key for key, _ in out})
+            if k is None:
+                k, self.next_id = self.next_id, self.next_id + 1
+            out[(k, k in self.tracks)] = seg
+        return out
+
+    def _reidentify(self, seg: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, busy: set[int]) -> int | None:
+        """The lost track that puts its points' centre nearest the segment's centre, held at its last
+        pose or carried on at its last velocity (whichever is nearer), within ``reid_distance`` and
+        with a size within ``reid_size_ratio``; None if none."""
+        pts = world_points(seg, depth, self.K, T_wc)
+        if len(pts) == 0:
+            return None
+        centre, size, best = pts.mean(0), extent(pts), None
+        for k, lv in self.live.items():
+            if k in busy or not len(lv.points):
+                continue
+            ratio = max(size, lv.size) / max(min(size, lv.size), 1e-6)
+            taus, poses = self.tracks[k].observed_taus(), self.tracks[k].poses()
+            ends = [transform_points(T, lv.points).mean(0) for T in (poses[-1], constant_velocity(taus, poses, tau))]
+            d = min(float((e - centre).norm()) for e in ends)
+            if d <= self.cfg.reid_distance and ratio <= self.cfg.reid_size_ratio and (best is None or d < best[0]):
+                best = (d, k)
+        return None if best is None else best[1]
+
+    # ---- results ------------------------------------------------------------------------------
+    def written_tracks(self) -> list[ObjectTrack]:
+        return [tr for k, tr in sorted(self.tracks.items()) if len(tr) >= MIN_WRITTEN_POSES]
+
+    def write(self, run: RunDir) -> list[Path]:
+        """objects/<id>.txt (TUM: timestamp, object-to-world pose at each observed frame) per track."""
+        paths = []
+        for tr in self.written_tracks():
+            stamps = [self.stamps[tr.object_id][tau] for tau in tr.observed_taus()]
+            paths.append(write_tum_trajectory(run.object_path(tr.object_id), stamps, tr.poses()))
+        return paths
+
+    def state_dict(self) -> dict[str, Any]:
+        """The tracks and identities (not the reference pyramids: after a restore each object's
+        next observation becomes its reference, at its predicted pose)."""
+        return {
+            "tracks": {k: tr.state_dict() for k, tr in self.tracks.items()},
+            "stamps": {k: dict(v) for k, v in self.stamps.items()},
+            "live": {k: {"points": lv.points, "size": lv.size, "last_time": lv.last_time} for k, lv in self.live.items()},
+            "next_id": self.next_id,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.tracks = {int(k): ObjectTrack.from_state_dict(s) for k, s in state["tracks"].items()}
+        self.stamps = {int(k): {float(a): float(b) for a, b in v.items()} for k, v in state["stamps"].items()}
+        self.live = {int(k): _Live([], v["points"], float(v["size"]), float(v["last_time"])) for k, v in state["live"].items()}
+        self.next_id = int(state["next_id"])
