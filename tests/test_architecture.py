@@ -26,10 +26,11 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("tivne.slam",),
     ("tivne.evaluation",),
     ("tivne.reporting",),
+    ("tivne.viewer",),  # a run as a rerun recording: above every library part, below the CLIs
     ("tivne.cli",),
 )
 # Command-line entry points: on top of everything, imported by no module.
-CLIS = {"tivne.train", "tivne.mesh", "tivne.evaluate", "tivne.make_masks", "tivne.collect", "tivne.report", "data_modules.inspect"}
+CLIS = {"tivne.train", "tivne.view", "tivne.mesh", "tivne.evaluate", "tivne.make_masks", "tivne.collect", "tivne.report", "data_modules.inspect"}
 # The pure metrics may use nothing of tivne but geometry.
 METRICS_MAY_IMPORT = ("tivne.geometry", "tivne.metrics")
 

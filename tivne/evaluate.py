@@ -18,7 +18,7 @@ import sys
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from tivne.cli import mesh_settings, one_line_errors, register_defaults, run_sequence
+from tivne.cli import mesh_settings, one_line_errors, quote_run_dir, register_defaults, run_sequence
 from tivne.config import MeshEvalSettings
 from tivne.evaluation import evaluate_run
 from tivne.slam.outputs import RunDir
@@ -44,4 +44,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    sys.argv = quote_run_dir(sys.argv)  # a sweep job dir as printed (tivne.cli.quote_run_dir)
     main()

@@ -18,7 +18,7 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
-from tivne.cli import mesh_settings, one_line_errors, register_defaults
+from tivne.cli import mesh_settings, one_line_errors, quote_run_dir, register_defaults
 from tivne.config import MeshConfig
 from tivne.field.networks import time_to_tau
 from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
@@ -66,4 +66,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    sys.argv = quote_run_dir(sys.argv)  # a sweep job dir as printed (tivne.cli.quote_run_dir)
     main()

@@ -14,7 +14,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from data_modules.frame import DatasetError
-from tivne.cli import error_line, one_line_errors, register_defaults, run_sequence
+from tivne.cli import error_line, one_line_errors, quote_run_dir, register_defaults, run_sequence
 from tivne.config import RenderConfig, ReportConfig
 from tivne.reporting.page import report_summary, write_report
 from tivne.slam.outputs import RunDir
@@ -39,4 +39,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    sys.argv = quote_run_dir(sys.argv)  # a sweep job dir as printed (tivne.cli.quote_run_dir)
     main()

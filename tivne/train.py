@@ -45,6 +45,7 @@ from tivne.config import (
     SamplerConfig,
     TrackingConfig,
     TrainerConfig,
+    ViewerConfig,
 )
 from tivne.evaluation import evaluate_run
 from tivne.evaluation.objective import objective_value
@@ -56,6 +57,7 @@ from tivne.slam.keyframes import KeyframePolicy
 from tivne.slam.outputs import RunDir, check_run_dir, tensorboard_hparams
 from tivne.slam.system import TivNeSLAM
 from tivne.utils import RunFailed, RunInterrupted, configure_runtime, interrupt_signals, require_device
+from tivne.viewer import make_observer, progress_callbacks
 
 register_defaults()
 
@@ -81,6 +83,7 @@ class TrainSettings:
     output: OutputConfig
     trainer: TrainerConfig
     objective: ObjectiveConfig
+    viewer: ViewerConfig
 
     @classmethod
     def from_config(cls, cfg: DictConfig) -> "TrainSettings":
@@ -90,7 +93,8 @@ class TrainSettings:
 
 
 def build_system(
-    cfg: DictConfig, intrinsics, run_dir: str | Path, settings: TrainSettings | None = None, masks: MaskProvider | None = None
+    cfg: DictConfig, intrinsics, run_dir: str | Path, settings: TrainSettings | None = None, masks: MaskProvider | None = None,
+    observer=None,
 ) -> TivNeSLAM:
     """Compose the typed stages from the config; ``masks`` (a provider object) replaces ``cfg.masks.provider``."""
     s = settings or TrainSettings.from_config(cfg)
@@ -110,6 +114,7 @@ def build_system(
         run_dir=run_dir,
         seed=int(cfg.seed),
         run_config=run_config(cfg),
+        observer=observer,
     )
 
 
@@ -152,7 +157,8 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     datamodule = SequenceDataModule(dataset, **plain(cfg.data))
     select_mesh_times(datamodule.view.timestamps, list(settings.mesh.times) or None)  # refuse bad times before the run
     resume = prepare_run_dir(cfg, options, run_dir, datamodule.view.timestamps)
-    system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks)
+    viewer = make_observer(settings.viewer, run_dir, datamodule.intrinsics, settings.output.image_every)  # viewer=rerun
+    system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks, observer=viewer)
     if resume is not None:
         datamodule.start = system.resume_from(resume)
     logger = TensorBoardLogger(save_dir=str(run_dir), name="", version=RunDir.TENSORBOARD, default_hp_metric=False)
@@ -166,7 +172,8 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
         num_sanity_val_steps=0,
         inference_mode=False,
         log_every_n_steps=1,
-        enable_progress_bar=settings.trainer.progress_bar,
+        enable_progress_bar=settings.trainer.progress_bar and sys.stdout.isatty(),  # plain lines elsewhere:
+        callbacks=progress_callbacks(settings.trainer, sys.stdout.isatty()),
         default_root_dir=str(run_dir),
     )
     try:
@@ -185,6 +192,8 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
         if not system.last_metrics.get("complete"):  # a second signal now is the default action: exit at once
             system.save_partial(f"interrupted by {exc} after {len(system.trajectory)} frames")
         raise
+    finally:
+        getattr(viewer, "close", lambda: None)()  # the recording file is whole, whatever happened
     tensorboard_hparams(logger, plain(cfg), metrics)
     check_tracked(run_dir, metrics)
     return metrics

@@ -37,6 +37,7 @@ from tivne.slam.checkpoint import restore_run_state, run_state, save_checkpoint,
 from tivne.slam.frontend import Tracker
 from tivne.slam.keyframes import KeyframeDatabase, KeyframePolicy
 from tivne.slam.mapping import Mapper, final_pass
+from tivne.slam.observer import FrameRecord, NoObserver, RunObserver, map_points, renderer_at, track_status
 from tivne.slam.outputs import RunDir, image_panels, tensorboard_mesh
 from tivne.slam.tracking import frozen
 from tivne.slam.trajectory import Trajectory
@@ -88,6 +89,7 @@ class TivNeSLAM(L.LightningModule):
         run_dir: str | Path,
         seed: int = 0,
         run_config: dict[str, Any] | None = None,
+        observer: RunObserver | None = None,
     ) -> None:
         super().__init__()
         self.automatic_optimization = False
@@ -118,6 +120,7 @@ class TivNeSLAM(L.LightningModule):
         self.between_frames = True  # the state is whole (a checkpoint of it can be resumed)
         self.resume_payload: dict[str, Any] | None = None  # restored once the module is on its device
         self.pending_rng: dict[str, Any] | None = None  # set just before the next frame
+        self.observer = observer or NoObserver()  # a viewer (tivne.viewer); never fails the run
 
     # ---- Lightning plumbing -------------------------------------------------------------------
     def configure_optimizers(self):
@@ -176,6 +179,10 @@ class TivNeSLAM(L.LightningModule):
         elapsed = time.perf_counter() - start
         self.timers.per_frame.append(elapsed)
         self._log_frame(k, view, stats, elapsed)
+        # viewer hook (tivne.slam.observer): one record per frame, built from what the step has
+        self.observer.on_frame(FrameRecord(
+            k, float(frame.timestamp), tau, view.pose.detach(), frame.gt_pose, frame.rgb, frame.depth, view.dynamic,
+            track_status(k, lost, stats), self.db.views[-1].frame_id == k, renderer_at(self.field, view, self.K, self.render_cfg)))
         if self.output_cfg.save_every and (k + 1) % self.output_cfg.save_every == 0:
             self.write_trajectory()
 
@@ -196,6 +203,7 @@ class TivNeSLAM(L.LightningModule):
         if k == 0 or k % self.mapping_cfg.every == 0:
             out = self._map(view, first=k == 0)
             self.last_mapped_tau = view.tau
+            self.observer.on_map(k, lambda: map_points(self.field))  # viewer hook: the map after this round
         self._allocate(view)
         odo = {n[len("track/"):]: v for n, v in stats.items() if n.startswith("track/")}
         out["track/new_reference"] = float(self.tracker.update_reference(view, self.K, odo, is_keyframe))
@@ -322,6 +330,7 @@ class TivNeSLAM(L.LightningModule):
             for name, img in self.render_panels(view, stride=2).items():
                 self.run.write_image(self.run.render_path(view.frame_id, name), img)
         metrics = self.run_metrics() | self._write_meshes() | {"complete": True}
+        self.observer.on_finish(self.trajectory.timestamps(), self.poses())  # viewer hook: the final trajectory
         self.last_metrics = self.run.merge_metrics(metrics)
         return self.last_metrics
 
@@ -392,6 +401,7 @@ class TivNeSLAM(L.LightningModule):
             tau = time_to_tau(ts, self.t0, self.field.time_scale)
             mesh = extract_mesh(self.field, tau, self.mesh_cfg.resolution, culling=self.mesh_cfg, camera_centres=centres)
             save_mesh(mesh, self.run.mesh_path(ts))
+            self.observer.on_mesh(ts, mesh)  # viewer hook
             result[f"mesh_t{ts:.3f}_faces"] = int(len(mesh.faces))
             if writer is not None and hasattr(writer, "add_mesh"):
                 tensorboard_mesh(writer, f"mesh/t{ts:.3f}", mesh, len(stamps) - 1)
