@@ -80,8 +80,8 @@ def host(x: torch.Tensor) -> np.ndarray:
 
 
 def to_uint8(rgb: torch.Tensor) -> np.ndarray:
-    """(H, W, 3) float 0..1 -> uint8."""
-    return host((rgb.clamp(0, 1) * 255 + 0.5).to(torch.uint8))
+    """(H, W, 3) float 0..1 -> uint8 (on the host, in numpy: no torch threads for a small image)."""
+    return (np.clip(host(rgb), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
 class Recorder:
