@@ -48,6 +48,27 @@ def rerun():
     return rr
 
 
+def default_blueprint():
+    """The layout a recording opens with: the 3D world (cameras, trajectories, map, meshes, boxes)
+    beside the observed / rendered frames, and the plots under it, on the ``scene_time`` timeline."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(
+                rrb.Spatial3DView(origin=WORLD, name="4D map"),
+                rrb.Vertical(rrb.Spatial2DView(origin=RGB, name="colour"), rrb.Spatial2DView(origin=RENDERED_RGB, name="rendered"),
+                             rrb.Spatial2DView(origin=DEPTH, name="depth")),
+                column_shares=[3, 1],
+            ),
+            rrb.TimeSeriesView(origin="plots", name="tracking"),
+            row_shares=[4, 1],
+        ),
+        rrb.TimePanel(timeline="scene_time", play_state="paused"),
+        collapse_panels=True,
+    )
+
+
 def set_time(rec, frame: int, seconds: float) -> None:
     """Put what follows at frame number ``frame`` and ``seconds`` since the first frame."""
     rec.set_time("frame", sequence=int(frame))

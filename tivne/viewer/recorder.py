@@ -47,13 +47,14 @@ def open_stream(cfg: ViewerConfig, path: Path, application_id: str = "tivne", re
     if sink == "spawn" and not has_display():
         print(f"warning: viewer.sink=spawn but no display here; recording to {path} instead", file=sys.stderr)
         sink = "file"
+    blueprint = E.default_blueprint()
     if sink == "file":
         path.parent.mkdir(parents=True, exist_ok=True)
-        rec.save(path)
+        rec.save(path, default_blueprint=blueprint)
     elif sink == "spawn":
-        rec.spawn(port=cfg.grpc_port)
+        rec.spawn(port=cfg.grpc_port, default_blueprint=blueprint)
     else:
-        uri = rec.serve_grpc(grpc_port=cfg.grpc_port, server_memory_limit=cfg.server_memory_limit)
+        uri = rec.serve_grpc(grpc_port=cfg.grpc_port, server_memory_limit=cfg.server_memory_limit, default_blueprint=blueprint)
         rr.serve_web_viewer(web_port=cfg.web_port, open_browser=False, connect_to=uri)
         print(f"viewer: rerun --connect {uri}   or a browser at http://localhost:{cfg.web_port}/?url={uri}", file=sys.stderr)
     return rec
