@@ -1,18 +1,26 @@
 """A screenshot of the rerun web viewer showing a run's recording at a mid-sequence time, taken by a
 real headless Chromium (Debian package ``chromium``), for the README.
 
-    python bench/viewer_screenshot.py [--run-dir RUN] [--frame 10] [--out docs/viewer.png] [--keep]
+    python bench/viewer_screenshot.py [--run-dir RUN [--reuse]] [--time 1.667] [--out docs/viewer.png]
 
 Without ``--run-dir`` it first makes a small cube run (16 frames, 1/6 s apart: t = 0 .. 2.5 s).
-Then ``python -m tivne.view`` writes run/view.rrd (meshes every 5th frame), ``rerun view.rrd
+Then ``python -m tivne.view`` writes run/view_screenshot.rrd (meshes every 5th frame), ``rerun view.rrd
 --serve-web`` serves it on localhost with the web viewer, and Chromium (software WebGL:
-SwiftShader) loads the viewer with the time cursor at ``--frame`` (``#when=frame@N``) and saves the
-PNG. Prints the commands it ran and the PNG's size; a blank or failed render is reported as such.
+SwiftShader) loads the viewer. The recording holds the run up to ``--time`` seconds (frame 10 of
+16 by default: ``tivne.view until=``) and opens following its newest data, so the viewer shows the
+scene at that time (a ``#when=`` URL fragment was ignored or broke the load). Once the
+viewer has started (its "Loading" text is gone) and ``--settle`` more seconds have passed, the page is
+saved as a PNG over the DevTools protocol (Chromium's own ``--screenshot`` fires before the viewer's
+WebAssembly has started). Needs ``aiohttp`` for the DevTools websocket. Prints the commands it ran,
+what the page said and the PNG's size.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
+import base64
+import json
 import os
 import shutil
 import socket
@@ -47,6 +55,40 @@ def wait_for(port: int, timeout: float = 60.0) -> None:
     raise TimeoutError(f"nothing listens on port {port} after {timeout:.0f} s")
 
 
+async def devtools_screenshot(port: int, out: Path, timeout: float, settle: float, size: tuple[int, int]) -> str:
+    """Wait for the viewer page to start (no "Loading" text left, up to ``timeout`` s), wait
+    ``settle`` s more, save a PNG of the page; returns the page's text at that point."""
+    import aiohttp
+
+    async with aiohttp.ClientSession() as http:
+        async with http.get(f"http://127.0.0.1:{port}/json") as resp:
+            page = next(t for t in await resp.json(content_type=None) if t["type"] == "page")
+        async with http.ws_connect(page["webSocketDebuggerUrl"], max_msg_size=0) as ws:
+            ids = iter(range(1, 10**6))
+
+            async def call(method: str, **params):
+                msg_id = next(ids)
+                await ws.send_str(json.dumps({"id": msg_id, "method": method, "params": params}))
+                async for msg in ws:
+                    data = json.loads(msg.data)
+                    if data.get("id") == msg_id:
+                        return data.get("result", {})
+                raise RuntimeError("DevTools connection closed")
+
+            await call("Emulation.setDeviceMetricsOverride", width=size[0], height=size[1], deviceScaleFactor=1, mobile=False)
+            end, text = time.time() + timeout, ""
+            while time.time() < end:
+                result = await call("Runtime.evaluate", expression="document.body ? document.body.innerText : ''")
+                text = str(result.get("result", {}).get("value", ""))
+                if "Loading" not in text:
+                    break
+                await asyncio.sleep(2)
+            await asyncio.sleep(settle)
+            shot = await call("Page.captureScreenshot", format="png")
+            out.write_bytes(base64.b64decode(shot["data"]))
+            return text
+
+
 def run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
     print("$ " + " ".join(cmd), flush=True)
     env = dict(os.environ, PYTHONPATH=str(REPO), OMP_WAIT_POLICY="PASSIVE")
@@ -56,10 +98,12 @@ def run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run-dir", type=Path)
-    parser.add_argument("--frame", type=int, default=10)
+    parser.add_argument("--time", type=float, default=1.667, help="seconds after the first frame the viewer shows")
+    parser.add_argument("--reuse", action="store_true", help="use run_dir/view.rrd as it is")
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "viewer.png")
     parser.add_argument("--size", default="1400,860")
-    parser.add_argument("--wait-ms", type=int, default=40000, help="Chromium's virtual time budget for loading and drawing")
+    parser.add_argument("--timeout", type=float, default=240.0, help="seconds to wait for the viewer to start")
+    parser.add_argument("--settle", type=float, default=30.0, help="seconds to let it stream and draw after that")
     args = parser.parse_args()
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:
@@ -68,22 +112,35 @@ def main() -> None:
     run_dir = args.run_dir or work / "cube"
     if args.run_dir is None:
         run([sys.executable, "-m", "tivne.train", *CUBE, f"hydra.run.dir={run_dir}"], stdout=subprocess.DEVNULL)
-    run([sys.executable, "-m", "tivne.view", f"run_dir={run_dir}", "every=5", "mesh.resolution=0.03"])
+    rrd = run_dir / "view_screenshot.rrd"
+    if not (args.reuse and rrd.is_file()):
+        run([sys.executable, "-m", "tivne.view", f"run_dir={run_dir}", "every=5", "mesh.resolution=0.03", f"until={args.time}",
+             f"out={rrd}"])
     web, grpc = free_port(), free_port()
     rerun_bin = Path(sys.executable).with_name("rerun")
-    server = subprocess.Popen([str(rerun_bin), str(run_dir / "view.rrd"), "--serve-web", "--web-viewer-port", str(web),
+    server = subprocess.Popen([str(rerun_bin), str(rrd), "--serve-web", "--web-viewer-port", str(web),
                                "--port", str(grpc)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         wait_for(web)
         wait_for(grpc)
-        inner = f"rerun+http://127.0.0.1:{grpc}/proxy#when=frame@{args.frame}"
+        inner = f"rerun+http://127.0.0.1:{grpc}/proxy"
         url = f"http://127.0.0.1:{web}/?url={urllib.parse.quote(inner, safe='')}"
         args.out.parent.mkdir(parents=True, exist_ok=True)
         profile = work / "chromium-profile"
         profile.mkdir()
-        run([chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--window-size={args.size}",
-             f"--virtual-time-budget={args.wait_ms}", f"--screenshot={args.out}", url], timeout=300,
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        devtools = free_port()
+        cmd = [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--window-size={args.size}",
+               f"--remote-debugging-port={devtools}", url]
+        print("$ " + " ".join(cmd), flush=True)
+        browser = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            wait_for(devtools)
+            width, height = (int(v) for v in args.size.split(","))
+            text = asyncio.run(devtools_screenshot(devtools, args.out, args.timeout, args.settle, (width, height)))
+            print(f"page text when taken: {text[:300]!r}")
+        finally:
+            browser.terminate()
+            browser.wait(timeout=30)
     finally:
         server.terminate()
         server.wait(timeout=20)

@@ -44,7 +44,7 @@ def main(cfg: DictConfig) -> None:
         view, _ = run_sequence(run.root)
     except (DatasetError, FileNotFoundError) as exc:  # the recording still shows what the run saved
         print(f"warning: no ground truth or frames in the recording ({error_line(exc).removeprefix('error: ')})", file=sys.stderr)
-    summary = record_run(run.root, view, cfg.every, mesh, viewer, cfg.out, device)
+    summary = record_run(run.root, view, cfg.every, mesh, viewer, cfg.out, device, cfg.until)
     if summary.gt_reason:
         print(f"warning: no ground truth in the recording: {summary.gt_reason}", file=sys.stderr)
     print(f"frames={summary.frames} meshes={len(summary.meshes)} error_frames={summary.error_frames} path={summary.path}")

@@ -48,23 +48,26 @@ def rerun():
     return rr
 
 
-def default_blueprint():
+def default_blueprint(rendered: bool = True, play_state: str = "paused"):
     """The layout a recording opens with: the 3D world (cameras, trajectories, map, meshes, boxes)
-    beside the observed / rendered frames, and the plots under it, on the ``scene_time`` timeline."""
+    beside the observed (and ``rendered``) frames, and the plots under it, on ``scene_time``
+    (``play_state`` 'following': the time cursor at the newest data)."""
     import rerun.blueprint as rrb
 
+    frames = [rrb.Spatial2DView(origin=RGB, name="colour")]
+    frames += [rrb.Spatial2DView(origin=RENDERED_RGB, name="rendered")] if rendered else []
+    frames += [rrb.Spatial2DView(origin=DEPTH, name="depth")]
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(
                 rrb.Spatial3DView(origin=WORLD, name="4D map"),
-                rrb.Vertical(rrb.Spatial2DView(origin=RGB, name="colour"), rrb.Spatial2DView(origin=RENDERED_RGB, name="rendered"),
-                             rrb.Spatial2DView(origin=DEPTH, name="depth")),
+                rrb.Vertical(*frames),
                 column_shares=[3, 1],
             ),
             rrb.TimeSeriesView(origin="plots", name="tracking"),
             row_shares=[4, 1],
         ),
-        rrb.TimePanel(timeline="scene_time", play_state="paused"),
+        rrb.TimePanel(timeline="scene_time", play_state=play_state),
         collapse_panels=True,
     )
 

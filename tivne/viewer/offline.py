@@ -5,7 +5,7 @@ GT camera, the estimated and GT trajectories growing as line strips, the per-fra
 against GT (SE(3)-aligned, as the ATE; :mod:`tivne.reporting.trajectory`) as a plot, every moving
 object's GT box, and the 4D mesh sequence: the field meshed (:mod:`tivne.meshing`: the static scene
 and the moving parts at that time) at every ``every``-th processed frame (or ``mesh.times``), so
-scrubbing the slider shows the scene as it was. The observed colour at the mesh frames too.
+scrubbing the slider shows the scene as it was. The observed colour and depth at the mesh frames too.
 """
 
 from __future__ import annotations
@@ -62,9 +62,11 @@ def record_run(
     cfg: ViewerConfig = ViewerConfig(kind="rerun"),
     out: str | Path | None = None,
     device: str = "cpu",
+    until: float | None = None,
 ) -> ViewSummary:
     """Write the recording of a run (see the module docstring) to ``out`` (default run_dir/view.rrd)
-    or ``cfg.sink``; ``view``: the run's sequence (None: no GT, no images).
+    or ``cfg.sink``; ``view``: the run's sequence (None: no GT, no images); ``until``: only the
+    frames up to this many seconds after the first, and the viewer opens at the last of them.
 
     Raises:
         FileNotFoundError: no run dir or no trajectory.txt; ConfigError: bad mesh times.
@@ -73,9 +75,14 @@ def record_run(
     if record.timestamps is None:
         raise FileNotFoundError(f"{RunDir(run_dir).trajectory}: not found; the run has no poses to view")
     ts, poses = record.timestamps, record.poses
+    if until is not None:  # a recording of the first part, e.g. to open a viewer at a chosen time
+        keep = ts - ts[0] <= until + 1e-6
+        ts, poses = ts[keep], poses[keep]
     times = select_mesh_times(record.recorded_times, list(mesh.times) or None, every) if record.field is not None else []
+    times = [t for t in times if t <= ts[-1] + 1e-6]
     path = Path(out) if out is not None else Path(run_dir) / VIEW_RECORDING
-    rec = open_stream(cfg, path, recording_id=str(Path(run_dir).resolve()))
+    rec = open_stream(cfg, path, recording_id=str(Path(run_dir).resolve()), rendered=False,
+                      play_state="paused" if until is None else "following")
     E.log_run_info(rec, float(ts[0]), None if view is None else np.asarray(view.intrinsics.K(), dtype=np.float32),
                    *((view.intrinsics.width, view.intrinsics.height) if view is not None else (0, 0)))
     gt_ts, gt_poses = gt_trajectory(view) if view is not None else (np.zeros(0), np.zeros((0, 4, 4)))
@@ -129,4 +136,6 @@ def _log_frames(rec, ts, poses, gt_ts, gt_poses, to_slam, view: SequenceView | N
             box[:3, :3], box[:3, 3] = R, center
             E.log_box(rec, f"{E.GT_OBJECTS}/{name}", to_slam @ box, half, E.GT_COLOUR)
         if view is not None and i in image_frames and i < len(view):
-            rec.log(E.RGB, rr.Image(to_uint8(view[i].rgb)))
+            frame = view[i]
+            rec.log(E.RGB, rr.Image(to_uint8(frame.rgb)))
+            rec.log(E.DEPTH, rr.DepthImage(frame.depth.numpy().astype(np.float32), meter=1.0))

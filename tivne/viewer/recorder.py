@@ -38,16 +38,18 @@ def has_display() -> bool:
     return not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def open_stream(cfg: ViewerConfig, path: Path, application_id: str = "tivne", recording_id: str | None = None):
+def open_stream(cfg: ViewerConfig, path: Path, application_id: str = "tivne", recording_id: str | None = None, rendered: bool = True,
+                play_state: str = "paused"):
     """A rerun RecordingStream on ``cfg.sink``: 'file' (``path``), 'spawn' (a local viewer; the file
-    without a display, with a warning) or 'serve' (gRPC + the web viewer; prints where to connect)."""
+    without a display, with a warning) or 'serve' (gRPC + the web viewer; prints where to connect),
+    with :func:`tivne.viewer.entities.default_blueprint` (``rendered``: a panel for rendered frames)."""
     rr = E.rerun()
     rec = rr.RecordingStream(application_id, recording_id=recording_id)
     sink = cfg.sink
     if sink == "spawn" and not has_display():
         print(f"warning: viewer.sink=spawn but no display here; recording to {path} instead", file=sys.stderr)
         sink = "file"
-    blueprint = E.default_blueprint()
+    blueprint = E.default_blueprint(rendered, play_state)
     if sink == "file":
         path.parent.mkdir(parents=True, exist_ok=True)
         rec.save(path, default_blueprint=blueprint)

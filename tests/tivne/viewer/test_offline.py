@@ -76,3 +76,12 @@ def test_view_of_the_cube_run_has_the_cube_where_the_ground_truth_has_it(cube_ru
         assert np.median(error) < 0.03, f"t={t}: the cube's surface is {np.median(error):.3f} m off"
         assert there.sum() < 0.25 * here.sum(), f"t={t}: {there.sum()} vertices where the cube is at t={other}"
 
+
+
+@pytest.mark.slow  # one more mesh of the cube run
+def test_a_recording_until_a_time_holds_the_frames_and_meshes_up_to_it(cube_run, tmp_path):
+    view, _ = run_sequence(cube_run)
+    summary = record_run(cube_run, view, every=15, mesh=MeshConfig(resolution=0.1), out=tmp_path / "first.rrd", until=1.0)
+    assert summary.frames == 7 and [t for t, _ in summary.meshes] == [0.0]  # frames at t = 0, 1/6, ..., 1.0
+    rows = read_recording(tmp_path / "first.rrd")
+    assert max(r.scene_time for r in rows_with(rows["/" + E.CAMERA], "Transform3D:translation")) == pytest.approx(1.0)
