@@ -9,7 +9,8 @@ Then ``python -m tivne.view`` writes run/view_screenshot.rrd (meshes every 5th f
 SwiftShader) loads the viewer. The recording holds the run up to ``--time`` seconds (frame 10 of
 16 by default: ``tivne.view until=``) and opens following its newest data, so the viewer shows the
 scene at that time (a ``#when=`` URL fragment was ignored or broke the load). Once the
-viewer has started (its "Loading" text is gone) and ``--settle`` more seconds have passed, the page is
+viewer has started (its "Loading" text is gone), its page has changed from the welcome page it
+shows before the recording arrives, and ``--settle`` more seconds have passed, the page is
 saved as a PNG over the DevTools protocol (Chromium's own ``--screenshot`` fires before the viewer's
 WebAssembly has started). Needs ``aiohttp`` for the DevTools websocket. Prints the commands it ran,
 what the page said and the PNG's size.
@@ -76,16 +77,25 @@ async def devtools_screenshot(port: int, out: Path, timeout: float, settle: floa
                 raise RuntimeError("DevTools connection closed")
 
             await call("Emulation.setDeviceMetricsOverride", width=size[0], height=size[1], deviceScaleFactor=1, mobile=False)
+
+            async def capture() -> bytes:
+                return base64.b64decode((await call("Page.captureScreenshot", format="png"))["data"])
+
             end, text = time.time() + timeout, ""
-            while time.time() < end:
+            while time.time() < end:  # the WebAssembly bundle loads and starts
                 result = await call("Runtime.evaluate", expression="document.body ? document.body.innerText : ''")
                 text = str(result.get("result", {}).get("value", ""))
                 if "Loading" not in text:
                     break
                 await asyncio.sleep(2)
+            # The viewer first shows its welcome page, then connects to the server and draws the
+            # recording: wait until the page changes from that first look, then let it draw.
+            first = shot = await capture()
+            while time.time() < end and abs(len(shot) - len(first)) < 0.3 * len(first):
+                await asyncio.sleep(5)
+                shot = await capture()
             await asyncio.sleep(settle)
-            shot = await call("Page.captureScreenshot", format="png")
-            out.write_bytes(base64.b64decode(shot["data"]))
+            out.write_bytes(await capture())
             return text
 
 
@@ -103,7 +113,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "viewer.png")
     parser.add_argument("--size", default="1400,860")
     parser.add_argument("--timeout", type=float, default=240.0, help="seconds to wait for the viewer to start")
-    parser.add_argument("--settle", type=float, default=30.0, help="seconds to let it stream and draw after that")
+    parser.add_argument("--settle", type=float, default=15.0, help="seconds to let it draw once the recording shows")
     args = parser.parse_args()
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:
