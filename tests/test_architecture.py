@@ -25,12 +25,13 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("tivne.masks",),
     ("tivne.slam",),
     ("tivne.evaluation",),
-    ("tivne.slam.run",),  # the library entry of a run: the loop, driven and evaluated
     ("tivne.reporting",),
+    ("tivne.viewer",),  # a run as a rerun recording: above every library part, below the CLIs
+    ("tivne.slam.run",),  # the library entry of a run: the loop, driven, watched and evaluated
     ("tivne.cli",),
 )
 # Command-line entry points: on top of everything, imported by no module.
-CLIS = {"tivne.train", "tivne.mesh", "tivne.evaluate", "tivne.make_masks", "tivne.collect", "tivne.report", "data_modules.inspect"}
+CLIS = {"tivne.train", "tivne.view", "tivne.mesh", "tivne.evaluate", "tivne.make_masks", "tivne.collect", "tivne.report", "data_modules.inspect"}
 # The pure metrics may use nothing of tivne but geometry.
 METRICS_MAY_IMPORT = ("tivne.geometry", "tivne.metrics")
 # Inside tivne.slam, bottom-up: what a frame's walk hands from stage to stage. The loop is plain
@@ -41,7 +42,7 @@ SLAM_LAYERS: tuple[tuple[str, ...], ...] = (
     ("tivne.slam.objects",),
     ("tivne.slam.keyframes", "tivne.slam.trajectory", "tivne.slam.allocation"),
     ("tivne.slam.mapping",),
-    ("tivne.slam.state", "tivne.slam.checkpoint"),
+    ("tivne.slam.state", "tivne.slam.checkpoint", "tivne.slam.observer"),
     ("tivne.slam.loop",),
     ("tivne.slam.results",),
     ("tivne.slam.system",),

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -222,3 +223,24 @@ def mesh_settings(node: DictConfig) -> MeshConfig:
     if values.get("times") is not None and not isinstance(values["times"], list):
         values["times"] = [values["times"]]  # mesh.times=1.5
     return MeshConfig.from_mapping(values)
+
+
+# ------------------------------------------------------------------------------------------------
+# run_dir= as a user copies it (the post-run commands: view, mesh, evaluate, report)
+# ------------------------------------------------------------------------------------------------
+
+
+def quote_run_dir(argv: list[str]) -> list[str]:
+    """``argv`` with the value of ``run_dir=...`` quoted for Hydra's override grammar, so a sweep's
+    job dir (``multirun/<time>/0_experiment=smoke,seed=0``: ``hydra.sweep.subdir`` names it from
+    its overrides) is taken as the path it is, without quoting tricks. A value already quoted is
+    left alone; backslashes and single quotes in the path are escaped."""
+    out = list(argv[:1])
+    for arg in argv[1:]:
+        key, sep, value = arg.partition("=")
+        if key == "run_dir" and sep and value and value[0] not in "'\"":
+            # In Hydra's quoted strings a backslash escapes only before a quote (or the closing one).
+            escaped = re.sub(r"(\\*)('|$)", lambda m: m.group(1) * 2 + ("\\'" if m.group(2) else ""), value, count=0)
+            arg = f"run_dir='{escaped}'"
+        out.append(arg)
+    return out

@@ -11,6 +11,7 @@ The YAML files under ``conf/`` only *choose* between presets; the defaults thems
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -388,12 +389,15 @@ class RunDirConfig(Settings):
 
 @dataclass(frozen=True)
 class TrainerConfig(Settings):
-    """accelerator: cpu, gpu/cuda (one CUDA device) or auto; progress_bar: Lightning's bar."""
+    """accelerator: cpu, gpu/cuda (one CUDA device) or auto; progress_bar: Lightning's bar in a
+    terminal; when stdout is not one (a file, CI), one plain line every log_every frames instead
+    (:class:`tivne.viewer.progress.PlainProgress`)."""
 
     section: ClassVar[str] = "trainer"
     accelerator: str = setting("cpu", choices=("cpu", "gpu", "cuda", "auto"))
     devices: int = setting(1, ge=1, le=1)
     progress_bar: bool = True
+    log_every: int = setting(10, ge=1)
 
 
 @dataclass(frozen=True)
@@ -417,6 +421,35 @@ class ObjectiveConfig(Settings):
 
 
 @dataclass(frozen=True)
+class ViewerConfig(Settings):
+    """``viewer=rerun`` (:mod:`tivne.viewer`): a rerun recording of the run. sink: 'file' (run_dir/
+    viewer.rrd, headless), 'spawn' (a local viewer window; needs a display) or 'serve' (gRPC on
+    grpc_port for ``rerun --connect``, plus the web viewer on web_port; a viewer that connects late
+    still gets what came before, up to server_memory_limit). image_every: colour / depth / mask /
+    rendered images every n frames (null = output.image_every; 0 = never); rendered: also the
+    colour and depth rendered at the estimated pose (a render of the frame, at render_stride);
+    trajectory_every: re-log the trajectory line strips every n frames; map_points: at most this
+    many points of the map at each mapping round (0 = none), map_every: every n-th mapping round."""
+
+    section: ClassVar[str] = "viewer"
+    kind: str = setting("none", choices=("none", "rerun"))
+    sink: str = setting("file", choices=("file", "spawn", "serve"))
+    image_every: int | None = setting(None, ge=0)
+    rendered: bool = True
+    render_stride: int = setting(2, ge=1)
+    trajectory_every: int = setting(5, ge=1)
+    map_points: int = setting(20000, ge=0)
+    map_every: int = setting(5, ge=1)
+    grpc_port: int = setting(9876, ge=1, le=65535)
+    web_port: int = setting(9090, ge=1, le=65535)
+    server_memory_limit: str = "1GiB"
+
+    def check(self) -> None:
+        if self.kind == "rerun" and importlib.util.find_spec("rerun") is None:
+            raise ConfigError("viewer=rerun: rerun-sdk is not installed; pip install -e '.[viewer]'")
+
+
+@dataclass(frozen=True)
 class ReportConfig(Settings):
     """``python -m tivne.report``: frames: how many processed frames (evenly spaced) the render / GT /
     depth-error contact sheet re-renders from the checkpoint (0 = none); render_stride: their pixel
@@ -433,5 +466,5 @@ class ReportConfig(Settings):
 SECTIONS: tuple[type[Settings], ...] = (
     RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, FieldTrackingConfig, OdometryConfig, MappingConfig,
     KeyframeConfig, SamplerConfig, MeshConfig, OutputConfig, AllocationConfig, TrainerConfig, ObjectiveConfig, RunDirConfig,
-    ObjectsConfig,
+    ObjectsConfig, ViewerConfig,
 )

@@ -19,7 +19,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from data_modules.errors import overrides_checked
-from tivne.cli import check_known_keys, mesh_settings, one_line_errors, register_defaults, run_sequence
+from tivne.cli import check_known_keys, mesh_settings, one_line_errors, quote_run_dir, register_defaults, run_sequence
 from tivne.config import MeshEvalSettings
 from tivne.evaluation import evaluate_run
 from tivne.slam.outputs import RunDir
@@ -47,4 +47,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    sys.argv = quote_run_dir(sys.argv)  # a sweep job dir as printed (tivne.cli.quote_run_dir)
     main()

@@ -19,7 +19,7 @@ import torch
 from omegaconf import DictConfig
 
 from data_modules.errors import overrides_checked
-from tivne.cli import check_known_keys, mesh_settings, one_line_errors, register_defaults
+from tivne.cli import check_known_keys, mesh_settings, one_line_errors, quote_run_dir, register_defaults
 from tivne.config import MeshConfig
 from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
 from tivne.slam.checkpoint import camera_centres, load_checkpoint
@@ -68,4 +68,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    sys.argv = quote_run_dir(sys.argv)  # a sweep job dir as printed (tivne.cli.quote_run_dir)
     main()

@@ -15,7 +15,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from data_modules.errors import overrides_checked
 from data_modules.frame import DatasetError
-from tivne.cli import check_known_keys, error_line, one_line_errors, register_defaults, run_sequence
+from tivne.cli import check_known_keys, error_line, one_line_errors, quote_run_dir, register_defaults, run_sequence
 from tivne.config import RenderConfig, ReportConfig
 from tivne.reporting.page import report_summary, write_report
 from tivne.slam.outputs import RunDir
@@ -42,4 +42,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    sys.argv = quote_run_dir(sys.argv)  # a sweep job dir as printed (tivne.cli.quote_run_dir)
     main()

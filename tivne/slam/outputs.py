@@ -41,8 +41,9 @@ from data_modules.frame import DatasetError
 from data_modules.io import atomic_write
 from data_modules.tables import write_tum_trajectory
 
-# Config keys that may differ when a run is resumed: where it runs and how the folder is treated.
-RESUME_IGNORED_KEYS = ("hydra", "resume", "overwrite")
+# Config keys that may differ when a run is resumed: where it runs, how the folder is treated and
+# whether a viewer watches it (viewer=rerun only reads the run).
+RESUME_IGNORED_KEYS = ("hydra", "resume", "overwrite", "viewer")
 
 
 class RunDirError(DatasetError):

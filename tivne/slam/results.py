@@ -14,6 +14,7 @@ from tivne.render.rays import View
 from tivne.render.renderer import render_image
 from tivne.slam.checkpoint import global_rng_state, save_checkpoint
 from tivne.slam.loop import SlamLoop
+from tivne.slam.observer import NoObserver, RunObserver, frame_record, map_points
 from tivne.slam.outputs import RunDir, image_panels, tensorboard_mesh
 from tivne.slam.state import FrameReport
 from tivne.slam.tracking.field import frozen
@@ -25,15 +26,25 @@ class RunWriter:
     plain values, saved in the checkpoint (a resumed run must repeat it); ``tensorboard``: a
     SummaryWriter for the meshes (or None)."""
 
-    def __init__(self, run_dir: str | Path, output: OutputConfig, mesh: MeshConfig, run_config: dict[str, Any] | None = None) -> None:
+    def __init__(
+        self, run_dir: str | Path, output: OutputConfig, mesh: MeshConfig, run_config: dict[str, Any] | None = None,
+        observer: RunObserver | None = None,
+    ) -> None:
         self.run = RunDir(run_dir)
         self.output, self.mesh = output, mesh
         self.run_config = run_config
+        self.observer = observer or NoObserver()  # a viewer (tivne.viewer); it never fails the run
         self.last_metrics: dict[str, Any] = {}
 
     def after_frame(self, loop: SlamLoop, report: FrameReport) -> None:
-        """The periodic writes: trajectory.txt every ``output.save_every`` frames, the checkpoint
-        every ``output.checkpoint_every``."""
+        """The frame to the observer, and the periodic writes: trajectory.txt every
+        ``output.save_every`` frames, the checkpoint every ``output.checkpoint_every``."""
+        if not isinstance(self.observer, NoObserver):
+            boxes = {i: tr.box for i, tr in loop.objects.tracks.items()} if loop.objects is not None else None
+            gt = loop.trajectory.records[report.index].gt_pose
+            self.observer.on_frame(frame_record(report, gt, loop.field, loop.K, loop.mapper.render, boxes))
+            if report.mapping is not None:
+                self.observer.on_map(report.index, lambda: map_points(loop.field))
         n = report.index + 1
         if self.output.save_every and n % self.output.save_every == 0:
             self.write_trajectory(loop)
@@ -74,6 +85,7 @@ class RunWriter:
             for name, img in render_panels(loop, view, stride=2).items():
                 self.run.write_image(self.run.render_path(view.frame_id, name), img)
         metrics = run_metrics(loop) | self.write_meshes(loop, tensorboard) | {"complete": True}
+        self.observer.on_finish(loop.trajectory.timestamps(), loop.poses.all())
         self.last_metrics = self.run.merge_metrics(metrics)
         return self.last_metrics
 
@@ -99,6 +111,7 @@ class RunWriter:
         for ts in times:
             mesh = extract_mesh(loop.field, loop.clock.tau(ts), self.mesh.resolution, culling=self.mesh, camera_centres=centres)
             save_mesh(mesh, self.run.mesh_path(ts))
+            self.observer.on_mesh(ts, mesh)
             result[f"mesh_t{ts:.3f}_faces"] = int(len(mesh.faces))
             if tensorboard is not None and hasattr(tensorboard, "add_mesh"):
                 tensorboard_mesh(tensorboard, f"mesh/t{ts:.3f}", mesh, len(stamps) - 1)

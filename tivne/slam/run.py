@@ -10,6 +10,7 @@ are skipped) or ``overwrite=true`` (its results are cleared first); see
 
 from __future__ import annotations
 
+import sys
 import typing
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +41,7 @@ from tivne.config import (
     SamplerConfig,
     TrackingConfig,
     TrainerConfig,
+    ViewerConfig,
 )
 from tivne.evaluation import evaluate_run
 from tivne.field.networks import TimeVaryingField
@@ -56,11 +58,13 @@ from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
 from tivne.slam.loop import SlamLoop
 from tivne.slam.mapping import Mapper
 from tivne.slam.objects import ObjectTracker
+from tivne.slam.observer import RunObserver
 from tivne.slam.outputs import RunDir, check_run_dir, tensorboard_hparams
 from tivne.slam.results import RunWriter
 from tivne.slam.system import TivNeSLAM, restore
 from tivne.slam.tracking import Tracker
 from tivne.utils import InterruptSignalsFirst, RunFailed, RunInterrupted, configure_runtime, interrupt_signals, require_device
+from tivne.viewer import make_observer, progress_callbacks
 
 
 def plain(node: Any) -> dict[str, Any]:
@@ -87,6 +91,7 @@ class TrainSettings:
     trainer: TrainerConfig
     objective: ObjectiveConfig
     objects: ObjectsConfig
+    viewer: ViewerConfig
 
     @classmethod
     def from_config(cls, cfg: DictConfig) -> "TrainSettings":
@@ -114,14 +119,15 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
 
 
 def build_system(
-    cfg: DictConfig, intrinsics: Intrinsics, run_dir: str | Path, settings: TrainSettings | None = None, masks: MaskProvider | None = None
+    cfg: DictConfig, intrinsics: Intrinsics, run_dir: str | Path, settings: TrainSettings | None = None, masks: MaskProvider | None = None,
+    observer: RunObserver | None = None,
 ) -> TivNeSLAM:
     """The LightningModule around a loop composed from ``cfg``; ``masks`` (a provider object)
-    replaces ``cfg.masks.provider``."""
+    replaces ``cfg.masks.provider``; ``observer`` watches the run (a viewer)."""
     s = settings or TrainSettings.from_config(cfg)
     provider = masks if masks is not None else build_provider(plain(cfg.masks.provider))
     loop = build_loop(s, intrinsics, provider, int(cfg.seed))
-    writer = RunWriter(run_dir, s.output, s.mesh, run_config(cfg))
+    writer = RunWriter(run_dir, s.output, s.mesh, run_config(cfg), observer)
     return TivNeSLAM(loop, writer, s.output.image_every)
 
 
@@ -177,7 +183,8 @@ def run_locked(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None 
                    settings.field.max_capacity, settings.field.embed_dim)  # before the first frame: tivne.limits
     select_mesh_times(datamodule.view.timestamps, list(settings.mesh.times) or None)  # refuse bad times before the run
     resume = prepare_run_dir(cfg, options, run_dir, datamodule.view.timestamps)
-    system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks)
+    viewer = make_observer(settings.viewer, run_dir, datamodule.intrinsics, settings.output.image_every)  # viewer=rerun
+    system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks, observer=viewer)
     if resume is not None:
         datamodule.start = system.resume_from(resume)
     logger = TensorBoardLogger(save_dir=str(run_dir), name="", version=RunDir.TENSORBOARD, default_hp_metric=False)
@@ -191,9 +198,10 @@ def run_locked(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None 
         num_sanity_val_steps=0,
         inference_mode=False,
         log_every_n_steps=1,
-        enable_progress_bar=settings.trainer.progress_bar,
+        enable_progress_bar=settings.trainer.progress_bar and sys.stdout.isatty(),  # plain lines elsewhere
         default_root_dir=str(run_dir),
-        callbacks=[InterruptSignalsFirst()],  # TivNe's SIGINT / SIGTERM handlers over Lightning's
+        # TivNe's SIGINT / SIGTERM handlers over Lightning's; one plain progress line every N frames off a terminal
+        callbacks=[InterruptSignalsFirst(), *progress_callbacks(settings.trainer, sys.stdout.isatty())],
     )
     try:
         with interrupt_signals():
@@ -211,6 +219,8 @@ def run_locked(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None 
         if not system.writer.last_metrics.get("complete"):  # a second signal now is the default action: exit at once
             system.writer.save_partial(system.loop, f"interrupted by {exc} after {len(system.loop)} frames")
         raise
+    finally:
+        getattr(viewer, "close", lambda: None)()  # the recording file is whole, whatever happened
     tensorboard_hparams(logger, plain(cfg), metrics)
     check_tracked(run_dir, metrics)
     return metrics

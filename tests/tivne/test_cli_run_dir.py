@@ -1,0 +1,63 @@
+"""Post-run commands take a run dir as a user copies it: a sweep's job dir is named from its
+overrides (``0_experiment=smoke,seed=0``), which Hydra's override grammar cannot parse unquoted;
+:func:`tivne.cli.quote_run_dir` quotes it, and view / mesh / evaluate / report run on a real joblib
+sweep's job dir as printed."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra.core.override_parser.overrides_parser import OverridesParser
+
+from tivne.cli import quote_run_dir
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.parametrize("path", [
+    "multirun/2026-12-02_02-00-00/0_experiment=smoke,seed=0", "a b/c'd", "x\\y", "end\\", "a[1]=b{c}:d", "plain/path",
+])
+def test_quoted_run_dir_parses_back_to_the_path(path):
+    arg = quote_run_dir(["prog", f"run_dir={path}"])[1]
+    assert OverridesParser.create().parse_override(arg).value() == path
+
+
+def test_other_arguments_and_quoted_values_are_left_alone():
+    argv = ["prog", "every=3", "run_dir='already quoted'", "mesh.times=[1,2]"]
+    assert quote_run_dir(argv) == argv
+
+
+def command(module: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True, timeout=300, cwd=cwd, env=env)
+
+
+@pytest.mark.slow  # a joblib sweep of one tiny job, then four commands on its job dir (~60 s)
+@pytest.mark.skipif(importlib.util.find_spec("hydra_plugins.hydra_joblib_launcher") is None, reason="needs '.[sweep]'")
+def test_post_run_commands_take_a_joblib_job_dir_as_printed(tmp_path):
+    sweep = command("tivne.train", "-m", "experiment=smoke", "dataset.width=80", "dataset.height=60", "dataset.cache_dir=null",
+                    "data.max_frames=4", "seed=0", "hydra/launcher=joblib", "hydra.launcher.n_jobs=1",
+                    "hydra.sweep.dir=multirun/sweep", cwd=tmp_path)
+    assert sweep.returncode == 0, sweep.stderr[-2000:]
+    (job,) = [p.relative_to(tmp_path) for p in (tmp_path / "multirun" / "sweep").iterdir() if p.is_dir()]
+    assert job.name.startswith("0_") and job.name.endswith("experiment=smoke,seed=0")  # what the user copies
+    arg = f"run_dir={job}"
+    report = command("tivne.report", arg, "report.frames=1", "report.mesh_width=64", cwd=tmp_path)
+    assert report.returncode == 0, report.stderr[-2000:]
+    assert (tmp_path / job / "report.html").is_file()
+    mesh = command("tivne.mesh", arg, "mesh.resolution=0.1", cwd=tmp_path)
+    assert mesh.returncode == 0 and "faces=" in mesh.stdout, mesh.stderr[-2000:]
+    evaluate = command("tivne.evaluate", arg, "settings.render_every=0", "settings.pred_samples=1000",
+                       "settings.object_samples=1000", "settings.static_samples=1000", cwd=tmp_path)
+    assert evaluate.returncode == 0, evaluate.stderr[-2000:]
+    assert json.loads(evaluate.stdout)["ate_rmse_m"] is not None
+    if importlib.util.find_spec("rerun") is not None:
+        view = command("tivne.view", arg, "every=3", "mesh.resolution=0.1", cwd=tmp_path)
+        assert view.returncode == 0, view.stderr[-2000:]
+        assert (tmp_path / job / "view.rrd").is_file() and "meshes=2" in view.stdout
