@@ -118,6 +118,12 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
     )
 
 
+def loop_from_config(cfg: DictConfig, intrinsics: Intrinsics, masks: MaskProvider | None = None) -> SlamLoop:
+    """The loop a composed config describes, its mask provider included (``masks`` replaces it)."""
+    provider = masks if masks is not None else build_provider(plain(cfg.masks.provider))
+    return build_loop(TrainSettings.from_config(cfg), intrinsics, provider, int(cfg.seed))
+
+
 def build_system(
     cfg: DictConfig, intrinsics: Intrinsics, run_dir: str | Path, settings: TrainSettings | None = None, masks: MaskProvider | None = None,
     observer: RunObserver | None = None,

@@ -19,7 +19,7 @@ from tivne.render.rays import View
 from tivne.slam.loop import SlamLoop
 from tivne.slam.mapping import final_pass
 from tivne.slam.results import RunWriter, run_metrics
-from tivne.slam.run import TrainSettings, build_loop, build_system
+from tivne.slam.run import TrainSettings, build_system, loop_from_config
 from tivne.slam.state import FrameReport
 from tivne.slam.tracking import TrackStatus
 from tivne.slam.tracking.tracker import pose_jump
@@ -33,7 +33,7 @@ def smoke_cfg(*overrides: str):
 
 
 def smoke_loop(intrinsics, *overrides: str) -> SlamLoop:
-    return build_loop(TrainSettings.from_config(smoke_cfg(*overrides)), intrinsics)
+    return loop_from_config(smoke_cfg(*overrides), intrinsics)  # with the config's (dataset) masks
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +43,7 @@ def processed(tiny_cube, tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("loop")
     cfg = smoke_cfg("keyframe.every=2")
     settings = TrainSettings.from_config(cfg)
-    loop = build_loop(settings, tiny_cube.intrinsics)
+    loop = loop_from_config(cfg, tiny_cube.intrinsics)
     reports = [loop.step(tiny_cube[k]) for k in range(5)]
     return loop, RunWriter(run_dir, settings.output, settings.mesh), run_dir, tiny_cube, reports
 
@@ -70,6 +70,7 @@ def test_reports_are_typed_and_carry_what_the_frame_did(processed):
     scalars = reports[3].scalars()
     assert {"track/odo_inlier_ratio", "track/new_reference", "map/loss", "map/window", "perf/s_per_frame", "map/voxels"} <= set(scalars)
     assert all(isinstance(v, float) and math.isfinite(v) for v in scalars.values())
+    assert all(r.view.dynamic is not None and r.view.dynamic.any() for r in reports)  # the cube's dataset masks
     for r in reports:  # the pose recorded is the pose reported: no second copy to drift
         torch.testing.assert_close(loop.poses.pose(r.index), r.pose.double(), atol=1e-6, rtol=0)
 

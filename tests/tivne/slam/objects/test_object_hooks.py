@@ -10,7 +10,7 @@ from hydra import compose, initialize_config_dir
 
 from data_modules.tables import read_tum_trajectory
 from tivne.slam.results import RunWriter, run_metrics
-from tivne.slam.run import TrainSettings, build_loop
+from tivne.slam.run import TrainSettings, loop_from_config
 
 CONF = Path(__file__).resolve().parents[4] / "conf"
 
@@ -20,7 +20,7 @@ def test_the_loop_tracks_the_object_and_writes_it(tiny_cube, tmp_path):
         cfg = compose("config", overrides=["experiment=smoke", "dataset.cache_dir=null", "output.save_every=0",
                                            "objects.track=true", "objects.min_pixels=50"])
     settings = TrainSettings.from_config(cfg)
-    loop = build_loop(settings, tiny_cube.intrinsics)
+    loop = loop_from_config(cfg, tiny_cube.intrinsics)
     reports = [loop.step(tiny_cube[k]) for k in range(4)]
     assert [len(r.objects) for r in reports] == [1, 1, 1, 1]  # the report carries each object's observation
     RunWriter(tmp_path, settings.output, settings.mesh).write_trajectory(loop)
