@@ -31,6 +31,7 @@ from omegaconf import DictConfig, OmegaConf
 from data_modules.sequence import SequenceDataModule
 from tivne.cli import in_multirun, one_line_errors, register_defaults
 from tivne.config import (
+    BackendConfig,
     FieldConfig,
     KeyframeConfig,
     LossWeights,
@@ -81,6 +82,7 @@ class TrainSettings:
     output: OutputConfig
     trainer: TrainerConfig
     objective: ObjectiveConfig
+    backend: BackendConfig
 
     @classmethod
     def from_config(cls, cfg: DictConfig) -> "TrainSettings":
@@ -110,6 +112,7 @@ def build_system(
         run_dir=run_dir,
         seed=int(cfg.seed),
         run_config=run_config(cfg),
+        backend=s.backend,
     )
 
 

@@ -194,6 +194,7 @@ def run_state(run: ResumableRun) -> dict[str, Any]:
         "timers": dataclasses.asdict(run.timers),
         "generator": run.generator.get_state(),
         "rng": global_rng_state(),
+        "backend": None if getattr(run, "backend", None) is None else run.backend.state_dict(),  # pose graph (#20)
     }
 
 
@@ -218,6 +219,8 @@ def restore_run_state(run: ResumableRun, payload: dict[str, Any], device: torch.
     run.counts = type(run.counts)(**state["counts"])
     run.timers = type(run.timers)(**state["timers"])
     run.generator.set_state(payload["resume"]["generator"].cpu())
+    if state.get("backend") is not None and getattr(run, "backend", None) is not None:  # pose graph (#20)
+        run.backend.load_state_dict(state["backend"])
     return rng
 
 

@@ -44,6 +44,9 @@ class OdometryResult:
     iterations: per level, coarsest first. min_eigenvalue, condition: of the final 6x6 information matrix
     (twist units m, rad); pose_std: 1/sqrt(min_eigenvalue), the σ along the worst-determined twist
     direction (optimistic: pixels are treated as independent). ok: all thresholds of the config met.
+    information: (6, 6) float64 JᵀWJ of the finest level's last linearisation, for the twist
+    δ = (v, w) (metres, radians) of a left perturbation T_ref_cur ← exp(δ) T_ref_cur (the update of
+    :func:`track_pyramids`); the pose graph converts it to its own tangent (:mod:`tivne.slam.backend`).
     """
 
     T_ref_cur: torch.Tensor
@@ -58,6 +61,7 @@ class OdometryResult:
     condition: float
     pose_std: float
     ok: bool
+    information: torch.Tensor
 
 
 @dataclass(frozen=True)
@@ -329,6 +333,7 @@ def _result(
         condition=max_eig / min_eig if min_eig > 0 else math.inf,
         pose_std=pose_std,
         ok=bool(ok),
+        information=lin.H.detach().cpu(),
     )
 
 

@@ -17,6 +17,7 @@ import torch
 
 from data_modules.frame import Frame, Intrinsics
 from tivne.config import (
+    BackendConfig,
     FieldConfig,
     LossWeights,
     MappingConfig,
@@ -33,6 +34,8 @@ from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
 from tivne.render.rays import View
 from tivne.render.renderer import render_image
 from tivne.render.samplers import PixelSampler
+from tivne.slam.backend import make_backend
+from tivne.slam.backend.apply import DatabasePoses, follow_corrections
 from tivne.slam.checkpoint import restore_run_state, run_state, save_checkpoint, set_global_rng_state
 from tivne.slam.frontend import Tracker
 from tivne.slam.keyframes import KeyframeDatabase, KeyframePolicy
@@ -88,6 +91,7 @@ class TivNeSLAM(L.LightningModule):
         run_dir: str | Path,
         seed: int = 0,
         run_config: dict[str, Any] | None = None,
+        backend: BackendConfig | None = None,
     ) -> None:
         super().__init__()
         self.automatic_optimization = False
@@ -118,6 +122,7 @@ class TivNeSLAM(L.LightningModule):
         self.between_frames = True  # the state is whole (a checkpoint of it can be resumed)
         self.resume_payload: dict[str, Any] | None = None  # restored once the module is on its device
         self.pending_rng: dict[str, Any] | None = None  # set just before the next frame
+        self.backend_cfg, self.backend = backend, make_backend(backend, odometry)  # pose graph (#20)
 
     # ---- Lightning plumbing -------------------------------------------------------------------
     def configure_optimizers(self):
@@ -192,7 +197,7 @@ class TivNeSLAM(L.LightningModule):
         if is_keyframe:
             for old in self.db.add(view):
                 self.trajectory.freeze(old.frame_id, old.pose)
-        out: dict[str, float] = {}
+        out: dict[str, float] = self._correct_poses() if is_keyframe and self.backend is not None else {}
         if k == 0 or k % self.mapping_cfg.every == 0:
             out = self._map(view, first=k == 0)
             self.last_mapped_tau = view.tau
@@ -200,6 +205,16 @@ class TivNeSLAM(L.LightningModule):
         odo = {n[len("track/"):]: v for n, v in stats.items() if n.startswith("track/")}
         out["track/new_reference"] = float(self.tracker.update_reference(view, self.K, odo, is_keyframe))
         return out
+
+    def _correct_poses(self) -> dict[str, float]:
+        """Pose graph (#20): the new keyframe's edges and closures, every keyframe corrected, the map following."""
+        poses = self.backend.add_keyframe(self.db.views, self.K)
+        iters = self.backend_cfg.refit_iters
+        refit = lambda vs: iters and self.mapper.run(vs, [True] * len(vs), iters, self.K, self.sampler, self.render_cfg, self.loss_weights, self.generator)  # noqa: E731
+        owner = DatabasePoses(self.db.views, self.tracker, self.tracked, self.trajectory)
+        c = follow_corrections(poses, owner, {v.frame_id: v for v in self.db.views}, self._allocate, refit, self.backend_cfg.refit_min_m, self.keyframe_policy.cfg.window + 1)
+        self.backend.record(c.max_displacement_m, refit=bool(c.refit and iters))
+        return self.backend.log_scalars() | {"graph/moved": float(len(c.moved)), "graph/displacement_m": c.max_displacement_m}
 
     def _track(self, k: int, tau: float, frame: Frame, mask: torch.Tensor | None) -> tuple[torch.Tensor, dict[str, float], bool]:
         """The frame's c2w pose and whether tracking was lost: the first camera defines the SLAM world
@@ -373,7 +388,7 @@ class TivNeSLAM(L.LightningModule):
             "frames_without_tracking": self.counts.without_tracking,
             "tracking_recovered": self.counts.recovered,
             "checkpoint": RunDir.CHECKPOINT,
-        }
+        } | (self.backend.metrics() if self.backend is not None else {})
         result = self.trajectory.ate(self.keyframe_poses())
         if result is not None:
             metrics.update(result.as_metrics())
