@@ -4,6 +4,8 @@
     python bench/real.py --frames 100                      # the first 100 frames
     python bench/real.py --root path/to/rgbd_dataset_freiburg3_walking_xyz --camera fr3
     python bench/real.py --only tivne tracking.method=field  # one system; extra args: TivNe overrides
+    python bench/real.py --sequence 7scenes                # the shared 7-Scenes redkitchen tail
+    python bench/real.py --also backend.method=graph       # a second TivNe config in the same run
 
 Both systems read the frames through TivNe's TUM reader (association, undistortion of colour and
 depth onto one K), so they see identical inputs. Each runs in its own process, so its peak RSS is
@@ -31,6 +33,11 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_ROOT = REPO.parent / "shared" / "data" / "tum_fr1_rpy_tail"
+# --sequence: (folder under shared/data, camera, fx fy cx cy for camera=custom)
+SEQUENCES = {
+    "fr1": ("tum_fr1_rpy_tail", "fr1", None),
+    "7scenes": ("7scenes_redkitchen_tail", "custom", (585.0, 585.0, 320.0, 240.0)),  # 7-Scenes' documented Kinect defaults
+}
 sys.path.insert(0, str(REPO))
 
 
@@ -46,19 +53,24 @@ def trajectory_figures(est: np.ndarray, gt: np.ndarray) -> dict[str, float]:
     }
 
 
-def load_view(root: str, camera: str, frames: int):
+def parse_intrinsics(text: str | None) -> tuple[float, ...] | None:
+    return None if not text else tuple(float(x) for x in text.split(","))
+
+
+def load_view(root: str, camera: str, frames: int, intrinsics: str | None = None):
     from data_modules.sequence import SequenceView
     from data_modules.tum import TUMSequence
 
-    return SequenceView(TUMSequence(root=root, camera=camera), max_frames=frames or None)
+    fx = dict(zip(("fx", "fy", "cx", "cy"), parse_intrinsics(intrinsics) or ()))
+    return SequenceView(TUMSequence(root=root, camera=camera, **fx), max_frames=frames or None)
 
 
-def run_open3d(root: str, camera: str, frames: int) -> dict[str, float]:
+def run_open3d(root: str, camera: str, frames: int, intrinsics: str | None) -> dict[str, float]:
     """Open3D's frame-to-model dense SLAM (examples/python/t_reconstruction_system/dense_slam.py settings)."""
     import open3d as o3d
     import open3d.core as o3c
 
-    view = load_view(root, camera, frames)
+    view = load_view(root, camera, frames, intrinsics)
     device = o3c.Device("CPU:0")
     K = o3c.Tensor(view.intrinsics.K().double().numpy())
     T = o3c.Tensor(np.identity(4))
@@ -88,7 +100,7 @@ def run_open3d(root: str, camera: str, frames: int) -> dict[str, float]:
     return out | {"frames": len(view), "s_per_frame": spent / len(view)}
 
 
-def run_tivne(root: str, camera: str, frames: int, overrides: list[str]) -> dict[str, float]:
+def run_tivne(root: str, camera: str, frames: int, intrinsics: str | None, overrides: list[str]) -> dict[str, float]:
     from hydra import compose, initialize_config_dir
 
     from data_modules.tables import read_tum_trajectory
@@ -97,31 +109,34 @@ def run_tivne(root: str, camera: str, frames: int, overrides: list[str]) -> dict
     args = ["dataset=tum", f"dataset.root={root}", f"dataset.camera={camera}", "trainer.progress_bar=false", "output.image_every=0"]
     if frames:
         args.append(f"data.max_frames={frames}")
+    args += [f"dataset.{k}={v}" for k, v in zip(("fx", "fy", "cx", "cy"), parse_intrinsics(intrinsics) or ())]
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=[*args, *overrides])
     out = Path(tempfile.mkdtemp(prefix="tivne-real-"))
     metrics = run(cfg, out)
-    view = load_view(root, camera, frames)
+    view = load_view(root, camera, frames, intrinsics)
     ts, est = read_tum_trajectory(out / "trajectory.txt")
     gt = {float(view.timestamps[i]): view[i].gt_pose for i in range(len(view))}
     keep = [i for i, t in enumerate(ts) if gt.get(float(t)) is not None]
     figures = trajectory_figures(est.numpy()[keep], np.stack([gt[float(ts[i])].double().numpy() for i in keep]))
     keys = ("frames", "s_per_frame", "track_ms_per_frame", "map_ms_per_iter", "final_refine_s", "tracking_lost", "frames_without_tracking")
-    return figures | {k: metrics.get(k) for k in keys} | {"run_dir": str(out)}
+    graph = {k: v for k, v in metrics.items() if k.startswith("graph_")}
+    return figures | {k: metrics.get(k) for k in keys} | graph | {"run_dir": str(out)}
 
 
 def child(args: argparse.Namespace, overrides: list[str]) -> None:
     """Run one system in this process and print its figures (plus peak RSS) as one JSON line."""
     if args.only == "open3d":
-        figures = run_open3d(args.root, args.camera, args.frames)
+        figures = run_open3d(args.root, args.camera, args.frames, args.intrinsics)
     else:
-        figures = run_tivne(args.root, args.camera, args.frames, overrides)
+        figures = run_tivne(args.root, args.camera, args.frames, args.intrinsics, overrides)
     figures["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print("FIGURES " + json.dumps(figures))
 
 
 def spawn(system: str, args: argparse.Namespace, overrides: list[str]) -> dict[str, float] | None:
-    cmd = [sys.executable, __file__, "--child", "--only", system, "--root", args.root, "--camera", args.camera, "--frames", str(args.frames), *overrides]
+    cmd = [sys.executable, __file__, "--child", "--only", system, "--root", args.root, "--camera", args.camera, "--frames", str(args.frames)]
+    cmd += (["--intrinsics", args.intrinsics] if args.intrinsics else []) + overrides
     proc = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OMP_WAIT_POLICY="PASSIVE"))
     lines = [line for line in proc.stdout.splitlines() if line.startswith("FIGURES ")]
     if proc.returncode != 0 or not lines:
@@ -131,18 +146,25 @@ def spawn(system: str, args: argparse.Namespace, overrides: list[str]) -> dict[s
 
 
 def table(results: dict[str, dict[str, float] | None]) -> str:
+    """One column per system, then each TivNe column's ratio to Open3D's."""
     rows = [
         ("ATE RMSE cm", "ate_rmse_m", 100), ("ATE mean cm", "ate_mean_m", 100), ("ATE max cm", "ate_max_m", 100),
         ("RPE trans cm/frame", "rpe_trans_rmse_m", 100), ("RPE rot deg/frame", "rpe_rot_rmse_deg", 1),
         ("s/frame", "s_per_frame", 1), ("peak RSS MB", "peak_rss_mb", 1), ("frames", "frames", 1),
+        ("graph edges", "graph_edges", 1), ("loop closures accepted", "graph_loops_accepted", 1),
+        ("loop closures rejected", "graph_loops_rejected", 1), ("graph optimise ms", "graph_optimise_ms", 1),
+        ("graph align ms", "graph_align_ms", 1),
     ]
     names = [n for n, r in results.items() if r is not None]
-    lines = ["| figure | " + " | ".join(names) + (" | TivNe / Open3D |" if len(names) == 2 else " |"), "|---" * (len(names) + 1 + (len(names) == 2)) + "|"]
+    base = "Open3D" if "Open3D" in names else None
+    ratios = [n for n in names if base and n != base]
+    lines = ["| figure | " + " | ".join(names + [f"{n} / Open3D" for n in ratios]) + " |", "|---" * (1 + len(names) + len(ratios)) + "|"]
     for label, key, scale in rows:
-        vals = [results[n].get(key) for n in names]
-        cells = ["n/a" if v is None else f"{v * scale:.3f}" for v in vals]
-        if len(names) == 2:
-            cells.append(f"{vals[0] / vals[1]:.2f}" if None not in vals and vals[1] else "n/a")
+        vals = {n: results[n].get(key) for n in names}
+        if all(v is None for v in vals.values()):
+            continue
+        cells = ["n/a" if vals[n] is None else f"{vals[n] * scale:.3f}" for n in names]
+        cells += [f"{vals[n] / vals[base]:.2f}" if vals[n] is not None and vals[base] else "n/a" for n in ratios]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -153,15 +175,28 @@ def main() -> None:
     parser.add_argument("--camera", default="fr1")
     parser.add_argument("--frames", type=int, default=0, help="first n frames (0 = all)")
     parser.add_argument("--only", choices=("tivne", "open3d"), default=None)
+    parser.add_argument("--sequence", choices=sorted(SEQUENCES), default=None, help="a shared real tail (sets --root, --camera, --intrinsics)")
+    parser.add_argument("--data", default=str(REPO.parent / "shared" / "data"), help="the folder holding the shared real tails (for --sequence)")
+    parser.add_argument("--intrinsics", default=None, help="fx,fy,cx,cy for --camera custom")
+    parser.add_argument("--also", action="append", default=[], help="another TivNe config in the same run: space-separated overrides")
     parser.add_argument("--json", default=None, help="also write the figures here")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args, overrides = parser.parse_known_args()
+    if args.sequence:
+        folder, args.camera, fx = SEQUENCES[args.sequence]
+        args.root = str(Path(args.data) / folder)
+        args.intrinsics = ",".join(str(x) for x in fx) if fx else None
     if args.child:
         return child(args, overrides)
-    systems = [args.only] if args.only else ["tivne", "open3d"]
-    results = {s: spawn(s, args, overrides) for s in systems}
+    results: dict[str, dict[str, float] | None] = {}
+    if args.only != "open3d":
+        results["TivNe"] = spawn("tivne", args, overrides)
+        for extra in args.also:
+            results[f"TivNe {extra}"] = spawn("tivne", args, overrides + extra.split())
+    if args.only != "tivne":
+        results["Open3D"] = spawn("open3d", args, overrides)
     print(f"\nbench/real.py on {args.root} ({args.frames or 'all'} frames; TivNe overrides: {' '.join(overrides) or 'none'})")
-    print(table({"TivNe" if k == "tivne" else "Open3D": v for k, v in results.items()}))
+    print(table(results))
     print(json.dumps(results))
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2) + "\n")

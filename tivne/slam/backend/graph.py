@@ -78,7 +78,7 @@ class PoseGraph:
 
     PRIOR_SIGMA = 1e-6  # the first keyframe defines the SLAM world frame
 
-    def __init__(self, robust: str = "cauchy", robust_k: float = 1.0, relinearize_threshold: float = 1e-3) -> None:
+    def __init__(self, robust: str = "cauchy", robust_k: float = 1.0, relinearize_threshold: float = 1e-5) -> None:
         self.gtsam = require_gtsam()
         self.robust, self.robust_k, self.relinearize_threshold = robust, float(robust_k), float(relinearize_threshold)
         self.nodes: dict[int, torch.Tensor] = {}  # frame id -> initial pose (4, 4) float64
@@ -172,5 +172,7 @@ class PoseGraph:
         for i, pose in zip(state["ids"], state["estimate"]):
             self._values.insert(int(i), to_pose3(self.gtsam, pose.double().cpu()))
         if self.nodes:
-            self.optimise()
+            self.optimise(extra_iterations=0)
+        # the run continues from the saved estimate (the solver's relinearised one differs by its last step)
+        self._estimate = {int(i): pose.double().cpu() for i, pose in zip(state["ids"], state["estimate"])}
         self.optimise_ms = float(state["optimise_ms"])
