@@ -131,3 +131,27 @@ def test_module_and_function_size(module):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES
     ]
     assert long == [], f"{path.relative_to(REPO)}: {long}"
+
+
+# The pose-graph back end sits beside the loop, not in it: it may use the odometry and the keyframe
+# overlap of tivne.slam, never the loop's modules (system, checkpoint, mapping, frontend), so it can
+# be re-wired onto another loop; gtsam (an optional extra) is imported by one module only.
+BACKEND = "tivne.slam.backend"
+BACKEND_MAY_IMPORT_FROM_SLAM = ("tivne.slam.odometry", "tivne.slam.pyramid", "tivne.slam.keyframes", "tivne.slam.robust", BACKEND)
+GTSAM_MODULES = {"tivne.slam.backend.graph"}
+
+
+def test_backend_does_not_import_the_loop():
+    bad = [f"{m} -> {d}" for m, deps in GRAPH.items() if m.startswith(BACKEND) for d in deps
+           if d.startswith("tivne.slam") and not d.startswith(BACKEND_MAY_IMPORT_FROM_SLAM)]
+    assert bad == []
+
+
+def test_gtsam_is_imported_by_the_graph_module_only():
+    importers = set()
+    for m, path in sources().items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            if any(n == "gtsam" or n.startswith("gtsam.") for n in names):
+                importers.add(m)
+    assert importers <= GTSAM_MODULES

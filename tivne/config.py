@@ -193,6 +193,7 @@ class OdometryConfig(Settings):
     min_overlap: float = setting(0.3, ge=0, le=1)
     min_inlier_ratio: float = setting(0.3, ge=0, le=1)
     max_pose_std: float = setting(0.01, gt=0)
+    brightness_gain: bool = False  # #20: also a contrast gain (MAD ratio) before the brightness offset
 
     def check(self) -> None:
         if not (self.photometric or self.geometric):

@@ -137,6 +137,15 @@ def _rows(p: torch.Tensor, g: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
     return torch.stack([g[0], g[1], g[2], y * g[2] - z * g[1], z * g[0] - x * g[2], x * g[1] - y * g[0], r])
 
 
+def brightness_gain(ref: torch.Tensor, cur: torch.Tensor, valid: torch.Tensor, limit: float = 2.0) -> torch.Tensor:
+    """Robust contrast ratio a (a scalar in [1/limit, limit]) of the reference intensities ref (N,)
+    to the current ones cur (N,) at the valid (N,) pairs: MAD(ref) / MAD(cur), the gain of an affine
+    brightness change I_ref = a·I_cur + b (the bias is the median offset that follows)."""
+    a, b = subsample(ref, valid), subsample(cur, valid)
+    mad = lambda x: (x - x.median()).abs().median()  # noqa: E731
+    return (mad(a) / mad(b).clamp_min(1e-6)).clamp(1.0 / limit, limit)
+
+
 def _photometric(
     ref: PyramidLevel, src: _Source, p: torch.Tensor, uv: torch.Tensor, dp_dz: torch.Tensor, valid: torch.Tensor, cfg: OdometryConfig
 ):
@@ -150,6 +159,8 @@ def _photometric(
     s = _sample(ref.warp_image, uv)  # (3, N): I, ∂I/∂u, ∂I/∂v
     valid = valid & src.has_colour
     r = s[0] - src.intensity
+    if cfg.brightness_gain and bool(valid.any()):  # an exposure change scales contrast too: I_ref ≈ a·I_cur + b
+        r = s[0] - brightness_gain(s[0], src.intensity, valid) * src.intensity
     if cfg.brightness_offset and bool(valid.any()):
         r = r - subsample(r, valid).median()
     x, y, z = p
