@@ -208,12 +208,14 @@ class TivNeSLAM(L.LightningModule):
 
     def _correct_poses(self) -> dict[str, float]:
         """Pose graph (#20): the new keyframe's edges and closures, every keyframe corrected, the map following."""
-        poses = self.backend.add_keyframe(self.db.views, self.K)
-        iters = self.backend_cfg.refit_iters
-        refit = lambda vs: iters and self.mapper.run(vs, [True] * len(vs), iters, self.K, self.sampler, self.render_cfg, self.loss_weights, self.generator)  # noqa: E731
+        poses, cfg = self.backend.add_keyframe(self.db.views, self.K), self.backend_cfg
+        def refit(views: list[View]) -> None:  # the stale part of the field, at the corrected (fixed) poses
+            if cfg.refit_iters:
+                self.mapper.run(views, [True] * len(views), cfg.refit_iters, self.K, self.sampler, self.render_cfg, self.loss_weights, self.generator)
         owner = DatabasePoses(self.db.views, self.tracker, self.tracked, self.trajectory)
-        c = follow_corrections(poses, owner, {v.frame_id: v for v in self.db.views}, self._allocate, refit, self.backend_cfg.refit_min_m, self.keyframe_policy.cfg.window + 1)
-        self.backend.record(c.max_displacement_m, refit=bool(c.refit and iters))
+        views = {v.frame_id: v for v in self.db.views}
+        c = follow_corrections(poses, owner, views, self._allocate, refit, cfg.refit_min_m, self.keyframe_policy.cfg.window + 1)
+        self.backend.record(c.max_displacement_m, refit=bool(c.refit and cfg.refit_iters))
         return self.backend.log_scalars() | {"graph/moved": float(len(c.moved)), "graph/displacement_m": c.max_displacement_m}
 
     def _track(self, k: int, tau: float, frame: Frame, mask: torch.Tensor | None) -> tuple[torch.Tensor, dict[str, float], bool]:

@@ -85,7 +85,8 @@ class KeyframePoseGraph:
             for i in covisible_candidates(earlier, new, K, self.cfg):
                 self._add_covisible(earlier[i], new, cur_pyr, K, predecessor=i == len(earlier) - 1)
             for i in loop_candidates(earlier, new, K, self.cfg):
-                a = align(earlier[i], new, keyframe_pyramid(earlier[i], K, self.odometry, self.cfg), cur_pyr, self.odometry, self.cfg, loop=True)
+                old = keyframe_pyramid(earlier[i], K, self.odometry, self.cfg)  # not cached: loop candidates are rarely reused
+                a = align(earlier[i], new, old, cur_pyr, self.odometry, self.cfg, loop=True)
                 if a.accepted:
                     self.graph.add_factor(self._factor(a, robust=True, loop=True))
                     self.closures.append((a.ref, a.cur))
