@@ -8,6 +8,7 @@ import math
 import time
 from collections import OrderedDict
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import torch
 
@@ -117,9 +118,9 @@ class KeyframePoseGraph:
         self.counters.max_correction_m = max(self.counters.max_correction_m, float(displacement_m))
         self.counters.refit_rounds += int(refit)
 
-    def metrics(self) -> dict[str, float]:
-        """metrics.json keys (``graph_`` prefix)."""
-        return {f"graph_{k}": v for k, v in asdict(self.counters).items()}
+    def metrics(self) -> dict[str, Any]:
+        """metrics.json keys (``graph_`` prefix): the counters and the accepted closures as [old, new] frame ids."""
+        return {f"graph_{k}": v for k, v in asdict(self.counters).items()} | {"graph_closures": [list(c) for c in self.closures]}
 
     def log_scalars(self) -> dict[str, float]:
         """TensorBoard scalars (``graph/`` prefix)."""

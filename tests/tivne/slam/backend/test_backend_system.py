@@ -42,6 +42,7 @@ def test_resume_restores_the_graph_in_the_loop(tmp_path, tiny_cube):
     assert list(whole.backend.graph.nodes) == whole.db.frame_ids()
     metrics = whole.run_metrics()
     assert metrics["graph_edges"] == whole.backend.counters.edges and "graph_optimise_ms" in metrics
+    assert metrics["graph_closures"] == [list(c) for c in whole.backend.closures]
 
     resumed = build_system(cfg, tiny_cube.intrinsics, tmp_path / "resumed")
     resumed.resume_from(read_checkpoint(tmp_path / "at3.pt"))
