@@ -41,6 +41,7 @@ SLAM_LAYERS: tuple[tuple[str, ...], ...] = (
     ("tivne.slam.tracking",),
     ("tivne.slam.objects",),
     ("tivne.slam.keyframes", "tivne.slam.trajectory", "tivne.slam.allocation"),
+    ("tivne.slam.backend",),
     ("tivne.slam.mapping",),
     ("tivne.slam.state", "tivne.slam.checkpoint", "tivne.slam.observer"),
     ("tivne.slam.loop",),
@@ -203,3 +204,27 @@ def test_objects_package_uses_only_the_odometry_of_the_loop():
     bad = [f"{m} -> {d}" for m, deps in GRAPH.items() if m.startswith("tivne.slam.objects") for d in deps
            if d.startswith("tivne.slam") and not d.startswith(OBJECTS_MAY_USE_OF_SLAM)]
     assert bad == []
+
+
+# The pose-graph back end sits beside the loop, not in it: it may use the odometry and the keyframe
+# overlap of tivne.slam, never the loop's modules (loop, system, checkpoint, mapping, the tracker), so it can
+# be re-wired onto another loop; gtsam (an optional extra) is imported by one module only.
+BACKEND = "tivne.slam.backend"
+BACKEND_MAY_IMPORT_FROM_SLAM = ("tivne.slam.tracking.odometry", "tivne.slam.tracking.pyramid", "tivne.slam.keyframes", "tivne.slam.tracking.robust", BACKEND)
+GTSAM_MODULES = {"tivne.slam.backend.graph"}
+
+
+def test_backend_does_not_import_the_loop():
+    bad = [f"{m} -> {d}" for m, deps in GRAPH.items() if m.startswith(BACKEND) for d in deps
+           if d.startswith("tivne.slam") and not d.startswith(BACKEND_MAY_IMPORT_FROM_SLAM)]
+    assert bad == []
+
+
+def test_gtsam_is_imported_by_the_graph_module_only():
+    importers = set()
+    for m, path in sources().items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            if any(n == "gtsam" or n.startswith("gtsam.") for n in names):
+                importers.add(m)
+    assert importers <= GTSAM_MODULES

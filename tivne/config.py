@@ -199,6 +199,7 @@ class OdometryConfig(Settings):
     min_overlap: float = setting(0.3, ge=0, le=1)
     min_inlier_ratio: float = setting(0.3, ge=0, le=1)
     max_pose_std: float = setting(0.01, gt=0)
+    brightness_gain: bool = False  # #20: also a contrast gain (MAD ratio) before the brightness offset
 
     def check(self) -> None:
         if not (self.photometric or self.geometric):
@@ -463,8 +464,48 @@ class ReportConfig(Settings):
     mesh_faces: int = setting(400_000, ge=1)
 
 
+@dataclass(frozen=True)
+class BackendConfig(Settings):
+    """The keyframe pose graph (:mod:`tivne.slam.backend`). method: 'none' (keyframe poses are the
+    tracked ones) or 'graph' (iSAM2 over keyframe poses; needs gtsam, the ``graph`` extra).
+    Edges: each new keyframe is aligned by the dense odometry to its predecessor and to up to
+    ``covisible`` more of the last ``loop_min_gap`` keyframes whose view it overlaps (share of its
+    pixels reprojecting into theirs >= min_overlap). Loop closures: up to ``loop_candidates`` older
+    keyframes within loop_max_distance_m / loop_max_angle_deg of it and overlapping, verified from a
+    wider basin (loop_extra_levels more pyramid levels). An edge is kept when the odometry succeeds,
+    its inlier ratio is >= min_inlier_ratio and it agrees with the current estimate within
+    max_edge_m / max_edge_deg (loops: loop_max_correction_m / _deg). information_scale: factor on
+    the odometry's JᵀWJ (it treats pixels as independent, which they are not); robust / robust_k:
+    the kernel on the whitened error of every edge but the predecessor's. refit_iters: mapping
+    steps over the keyframes a correction moved by more than refit_min_m (the stale part of the field)."""
+
+    section: ClassVar[str] = "backend"
+    method: str = setting("none", choices=("none", "graph"))
+    covisible: int = setting(2, ge=0)
+    min_overlap: float = setting(0.5, ge=0, le=1)
+    loop_min_gap: int = setting(8, ge=2)
+    loop_candidates: int = setting(1, ge=0)
+    loop_max_distance_m: float = setting(0.5, gt=0)
+    loop_max_angle_deg: float = setting(30.0, gt=0)
+    loop_extra_levels: int = setting(1, ge=0, le=3)
+    min_inlier_ratio: float = setting(0.6, ge=0, le=1)
+    max_edge_m: float = setting(0.05, gt=0)
+    max_edge_deg: float = setting(3.0, gt=0)
+    loop_max_correction_m: float = setting(0.15, gt=0)
+    loop_max_correction_deg: float = setting(8.0, gt=0)
+    information_scale: float = setting(0.01, gt=0)
+    robust: str = setting("cauchy", choices=("cauchy", "huber"))
+    robust_k: float = setting(3.0, gt=0)
+    refit_iters: int = setting(20, ge=0)
+    refit_min_m: float = setting(0.01, ge=0)
+
+    def check(self) -> None:
+        if self.method == "graph" and importlib.util.find_spec("gtsam") is None:
+            raise ConfigError("backend.method=graph needs gtsam, which is not installed: pip install 'tivne[graph]' (or pip install gtsam)")
+
+
 SECTIONS: tuple[type[Settings], ...] = (
     RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, FieldTrackingConfig, OdometryConfig, MappingConfig,
     KeyframeConfig, SamplerConfig, MeshConfig, OutputConfig, AllocationConfig, TrainerConfig, ObjectiveConfig, RunDirConfig,
-    ObjectsConfig, ViewerConfig,
+    ObjectsConfig, ViewerConfig, BackendConfig,
 )

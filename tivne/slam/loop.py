@@ -14,13 +14,15 @@ allocate -> record. Each component owns its settings and its state:
     allocator   VoxelAllocator: where the map grows
     trajectory  Trajectory: every frame's pose, relative to its keyframe (PoseBook reads both)
     objects     ObjectTracker (optional): one SE(3) track per moving object, by the same odometry
+    backend     KeyframePoseGraph (optional, backend.method=graph): keyframe edges, loop closures,
+                iSAM2; its corrections go to the keyframe store, the map follows
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 
@@ -30,6 +32,7 @@ from tivne.field.networks import TimeVaryingField
 from tivne.masks.base import MaskContext, MaskProvider, NoMasks
 from tivne.render.rays import View
 from tivne.slam.allocation import VoxelAllocator
+from tivne.slam.backend.apply import Correction, follow_corrections
 from tivne.slam.keyframes import KeyframePolicy, KeyframeStore, view_from_state, view_state
 from tivne.slam.mapping import Mapper, final_pass
 from tivne.slam.objects import ObjectTracker
@@ -37,6 +40,9 @@ from tivne.slam.state import FrameReport, Timers
 from tivne.slam.tracking import Tracker
 from tivne.slam.tracking.field import frozen
 from tivne.slam.trajectory import PoseBook, Trajectory
+
+if TYPE_CHECKING:  # gtsam is optional: the graph's module is imported only where it is built
+    from tivne.slam.backend.posegraph import KeyframePoseGraph
 
 
 class SlamLoop:
@@ -54,9 +60,11 @@ class SlamLoop:
         masks: MaskProvider | None = None,
         seed: int = 0,
         objects: ObjectTracker | None = None,
+        backend: KeyframePoseGraph | None = None,
     ) -> None:
         self.field, self.intrinsics = field, intrinsics
         self.objects = objects  # per-object rigid tracks (objects.track), or None
+        self.backend = backend  # the keyframe pose graph (backend.method=graph), or None
         self.tracker, self.mapper, self.keyframes, self.policy = tracker, mapper, keyframes, policy
         self.allocator = allocator
         self.masks = masks or NoMasks()
@@ -95,9 +103,9 @@ class SlamLoop:
         result = self.tracker.track(k, frame, tau, mask, self.field, self.poses, self.K, self.last_mapped_tau, self.generator)
         view = View(k, tau, frame.rgb, frame.depth, mask, result.pose)
         keyframe = new_reference = False
-        mapping, objects = None, []
+        mapping, objects, correction = None, [], None
         if not result.lost:  # a frame whose pose is not known is never mapped
-            view, keyframe, new_reference, mapping = self._integrate(k, view, frame, result)
+            view, keyframe, new_reference, mapping, correction = self._integrate(k, view, frame, result)
             if self.objects is not None:  # each moving object's SE(3), the camera pose known
                 objects = self.objects.observe(frame, view.pose, tau, view.dynamic)
         latest = self.keyframes.frame_ids()[-1]
@@ -108,9 +116,9 @@ class SlamLoop:
         self.timers.per_frame.append(elapsed)
         self.between_frames = True
         return FrameReport(k, float(frame.timestamp), tau, result, view, keyframe, new_reference, mapping, elapsed,
-                           self.field.grid.num_voxels, tuple(objects))
+                           self.field.grid.num_voxels, tuple(objects), correction)
 
-    def _integrate(self, k: int, view: View, frame: Frame, result) -> tuple[View, bool, bool, Any]:
+    def _integrate(self, k: int, view: View, frame: Frame, result) -> tuple[View, bool, bool, Any, Correction | None]:
         """Everything after a successful track: the mask, keyframes, mapping, voxels, the odometry reference."""
         K = self.K
         if self.masks.needs_tracked_pose:
@@ -121,9 +129,13 @@ class SlamLoop:
         if k == 0:  # the first frame is mapped before anything else: its voxels first
             self.allocator.allocate(self.field.grid, view, K)
         keyframe = self.keyframes.should_insert(k)
+        correction = None
         if keyframe:
             for frame_id, pose in self.keyframes.add(view):
                 self.trajectory.freeze(frame_id, pose)
+            if self.backend is not None:
+                correction = self._correct_poses()
+                view = dataclasses.replace(view, pose=self.keyframes.pose(k).to(view.pose.dtype))
         mapping = None
         if k == 0 or k % self.mapper.cfg.every == 0:
             mapping = self.mapper.map_frame(view, self.keyframes, self.policy, K, self.generator, first=k == 0)
@@ -134,7 +146,24 @@ class SlamLoop:
         if k > 0:
             self.allocator.allocate(self.field.grid, view, K)
         new_reference = self.tracker.update_reference(view, K, result, keyframe)
-        return view, keyframe, new_reference, mapping
+        return view, keyframe, new_reference, mapping, correction
+
+    def _correct_poses(self) -> Correction:
+        """The pose graph's step for a new keyframe: its edges and closures, every keyframe pose
+        corrected in the store (the trajectory, the odometry reference and the motion model read
+        theirs from there), voxels where corrected depth lands, the most moved keyframes re-fit."""
+        K, cfg = self.K, self.backend.cfg
+        poses = self.backend.add_keyframe(self.keyframes.views(), K)
+
+        def refit(views: list[View]) -> None:  # the stale part of the field, at the corrected (fixed) poses
+            if cfg.refit_iters:
+                self.mapper.run(views, [True] * len(views), cfg.refit_iters, K, self.generator)
+
+        ids = self.keyframes.frame_ids()
+        c = follow_corrections(poses, self.keyframes, lambda i: self.keyframes.view(ids.index(i)),
+                               lambda v: self.allocator.allocate(self.field.grid, v, K), refit, cfg.refit_min_m, self.policy.cfg.window + 1)
+        self.backend.record(c.max_displacement_m, refit=bool(c.refit and cfg.refit_iters))
+        return c
 
     # ---- after the last frame -------------------------------------------------------------------
     def finish(self) -> None:
@@ -173,6 +202,7 @@ class SlamLoop:
             "timers": dataclasses.asdict(self.timers),
             "generator": self.generator.get_state(),
             "objects": None if self.objects is None else self.objects.state_dict(),
+            "backend": None if self.backend is None else self.backend.state_dict(),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -190,3 +220,5 @@ class SlamLoop:
         self.generator.set_state(state["generator"].cpu())
         if self.objects is not None and state.get("objects") is not None:
             self.objects.load_state_dict(state["objects"])
+        if self.backend is not None and state.get("backend") is not None:
+            self.backend.load_state_dict(state["backend"])

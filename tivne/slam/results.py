@@ -151,7 +151,7 @@ def run_metrics(loop: SlamLoop) -> dict[str, Any]:
         "frames_without_tracking": counts.without_tracking,
         "tracking_recovered": counts.recovered,
         "checkpoint": RunDir.CHECKPOINT,
-    } | (loop.objects.metrics() if loop.objects is not None else {})
+    } | (loop.objects.metrics() if loop.objects is not None else {}) | (loop.backend.metrics() if loop.backend is not None else {})
     result = loop.ate()
     if result is not None:
         metrics.update(result.as_metrics())

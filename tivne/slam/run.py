@@ -25,6 +25,7 @@ from data_modules.frame import Intrinsics
 from data_modules.sequence import SequenceDataModule
 from tivne.config import (
     AllocationConfig,
+    BackendConfig,
     FieldConfig,
     FieldTrackingConfig,
     KeyframeConfig,
@@ -53,6 +54,7 @@ from tivne.meshing import select_mesh_times
 from tivne.render.samplers import PixelSampler
 from tivne.runlock import run_lock
 from tivne.slam.allocation import VoxelAllocator
+from tivne.slam.backend import make_backend
 from tivne.slam.checkpoint import load_resume_state, set_global_rng_state
 from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
 from tivne.slam.loop import SlamLoop
@@ -92,6 +94,7 @@ class TrainSettings:
     objective: ObjectiveConfig
     objects: ObjectsConfig
     viewer: ViewerConfig
+    backend: BackendConfig
 
     @classmethod
     def from_config(cls, cfg: DictConfig) -> "TrainSettings":
@@ -115,6 +118,7 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
         masks=masks,
         seed=seed,
         objects=ObjectTracker(s.objects, intrinsics.K(), s.odometry) if s.objects.track else None,
+        backend=make_backend(s.backend, s.odometry),
     )
 
 

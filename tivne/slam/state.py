@@ -9,6 +9,7 @@ from dataclasses import field as dc_field
 import torch
 
 from tivne.render.rays import View
+from tivne.slam.backend.apply import Correction
 from tivne.slam.mapping import MapRound
 from tivne.slam.objects.tracker import ObjectObservation
 from tivne.slam.tracking import TrackResult
@@ -27,7 +28,8 @@ class FrameReport:
     """One processed frame: its stream index, timestamp (s) and field time τ; the tracking result;
     whether it became a keyframe and the odometry reference; the mapping round it ran (None: not
     mapped); the view as mapped (its pose and final mask); seconds spent; the map's size after it;
-    what the object tracker made of each moving object (empty without ``objects.track``)."""
+    what the object tracker made of each moving object (empty without ``objects.track``); what the
+    pose graph's correction did at a new keyframe (None without ``backend.method=graph``)."""
 
     index: int
     timestamp: float
@@ -40,6 +42,7 @@ class FrameReport:
     seconds: float
     voxels: int
     objects: tuple[ObjectObservation, ...] = ()
+    correction: Correction | None = None
 
     @property
     def pose(self) -> torch.Tensor:
@@ -54,4 +57,6 @@ class FrameReport:
             out |= {f"map/{k}": v for k, v in self.mapping.scalars().items()}
         if self.objects:
             out["objects/observed"] = float(len(self.objects))
+        if self.correction is not None:
+            out |= {"graph/moved": float(len(self.correction.moved)), "graph/displacement_m": self.correction.max_displacement_m}
         return out | {"perf/s_per_frame": self.seconds, "map/voxels": float(self.voxels)}

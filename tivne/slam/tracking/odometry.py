@@ -44,6 +44,9 @@ class OdometryResult:
     iterations: per level, coarsest first. min_eigenvalue, condition: of the final 6x6 information matrix
     (twist units m, rad); pose_std: 1/sqrt(min_eigenvalue), the σ along the worst-determined twist
     direction (optimistic: pixels are treated as independent). ok: all thresholds of the config met.
+    information: (6, 6) float64 JᵀWJ of the finest level's last linearisation, for the twist
+    δ = (v, w) (metres, radians) of a left perturbation T_ref_cur ← exp(δ) T_ref_cur (the update of
+    :func:`track_pyramids`); the pose graph converts it to its own tangent (:mod:`tivne.slam.backend`).
     """
 
     T_ref_cur: torch.Tensor
@@ -58,6 +61,7 @@ class OdometryResult:
     condition: float
     pose_std: float
     ok: bool
+    information: torch.Tensor
 
 
 @dataclass(frozen=True)
@@ -133,6 +137,15 @@ def _rows(p: torch.Tensor, g: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
     return torch.stack([g[0], g[1], g[2], y * g[2] - z * g[1], z * g[0] - x * g[2], x * g[1] - y * g[0], r])
 
 
+def brightness_gain(ref: torch.Tensor, cur: torch.Tensor, valid: torch.Tensor, limit: float = 2.0) -> torch.Tensor:
+    """Robust contrast ratio a (a scalar in [1/limit, limit]) of the reference intensities ref (N,)
+    to the current ones cur (N,) at the valid (N,) pairs: MAD(ref) / MAD(cur), the gain of an affine
+    brightness change I_ref = a·I_cur + b (the bias is the median offset that follows)."""
+    a, b = subsample(ref, valid), subsample(cur, valid)
+    mad = lambda x: (x - x.median()).abs().median()  # noqa: E731
+    return (mad(a) / mad(b).clamp_min(1e-6)).clamp(1.0 / limit, limit)
+
+
 def _photometric(
     ref: PyramidLevel, src: _Source, p: torch.Tensor, uv: torch.Tensor, dp_dz: torch.Tensor, valid: torch.Tensor, cfg: OdometryConfig
 ):
@@ -146,6 +159,8 @@ def _photometric(
     s = _sample(ref.warp_image, uv)  # (3, N): I, ∂I/∂u, ∂I/∂v
     valid = valid & src.has_colour
     r = s[0] - src.intensity
+    if cfg.brightness_gain and bool(valid.any()):  # an exposure change scales contrast too: I_ref ≈ a·I_cur + b
+        r = s[0] - brightness_gain(s[0], src.intensity, valid) * src.intensity
     if cfg.brightness_offset and bool(valid.any()):
         r = r - subsample(r, valid).median()
     x, y, z = p
@@ -329,6 +344,7 @@ def _result(
         condition=max_eig / min_eig if min_eig > 0 else math.inf,
         pose_std=pose_std,
         ok=bool(ok),
+        information=lin.H.detach().cpu(),
     )
 
 

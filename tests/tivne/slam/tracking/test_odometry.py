@@ -207,3 +207,19 @@ def test_cuda_matches_cpu(room):
     K = room.intrinsics.K()
     res = rgbd_odometry(*(x.cuda() for x in (ref[0], ref[1], cur[0], cur[1], K)))
     assert res.T_ref_cur.is_cuda and pose_error(res.T_ref_cur.cpu(), dT)[0] < 1.0
+
+
+def test_information_is_the_final_normal_matrix(room):
+    """OdometryResult.information: the 6x6 JᵀWJ its pose σ and condition number are taken from,
+    and it predicts the solution's sensitivity: more weight on translation than a degenerate system."""
+    P = room.camera_pose(0)
+    dT = motion(7, 0.02, 2.0)
+    ref, cur = view(room, P), view(room, P @ dT)
+    res = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], room.intrinsics.K())
+    info = res.information
+    assert info.shape == (6, 6) and info.dtype == torch.float64
+    assert torch.allclose(info, info.T, rtol=0, atol=1e-5 * float(info.abs().max()))  # float32 partial sums
+    eig = torch.linalg.eigvalsh(info)
+    assert float(eig[0]) > 0
+    assert res.pose_std == pytest.approx(1.0 / math.sqrt(float(eig[0])), rel=1e-6)
+    assert res.condition == pytest.approx(float(eig[-1] / eig[0]), rel=1e-6)
