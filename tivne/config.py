@@ -70,6 +70,42 @@ class FieldConfig(Settings):
 
 
 @dataclass(frozen=True)
+class ObjectFieldConfig(Settings):
+    """Object fields of ``field=objects`` (:class:`tivne.field.objects.ObjectField`): one canonical
+    field per moving object in its own frame, beside the static field of ``field.*``. tracks: where
+    the objects' SE(3) poses come from ("oracle": the dataset's ground truth, until object tracking
+    lands). voxel_size, embed_dim, hidden_dim, num_hidden, capacity: each object's grid and decoder;
+    time: keep Θd for the residual non-rigid motion (Δe exactly 0 at the object's first time);
+    time_frequencies, offset_ramp: as ``field.*``; surface_cell: record of the object's observed
+    surface (object frame) for ``mesh.near_surface``; box_margin: metres the object box grows by;
+    window: an object is placed at τ only if observed within this many τ; mesh_resolution: the
+    marching-cubes step of the object meshes (metres, object frame)."""
+
+    section: ClassVar[str] = "objects"
+    tracks: str = setting("oracle", choices=("oracle",))
+    voxel_size: float = setting(0.04, gt=0)
+    embed_dim: int = setting(16, ge=1)
+    hidden_dim: int = setting(64, ge=1)
+    num_hidden: int = setting(3, ge=1)
+    capacity: int = setting(4096, ge=1)
+    max_capacity: int = setting(500_000, ge=1)
+    time: bool = True
+    time_frequencies: int = setting(4, ge=0)
+    offset_ramp: float = setting(0.1, gt=0)
+    allocation_dilation: int = setting(1, ge=0)
+    surface_cell: float = setting(0.01, ge=0)
+    box_margin: float = setting(0.1, ge=0)
+    window: float = setting(0.5, ge=0)
+    mesh_resolution: float = setting(0.01, gt=0)
+
+    def object_kwargs(self, field: FieldConfig) -> dict[str, Any]:
+        """Keyword arguments of each object's :class:`tivne.field.TimeVaryingField` (the rest from ``field``)."""
+        own = ("voxel_size", "embed_dim", "hidden_dim", "num_hidden", "capacity", "max_capacity", "time", "time_frequencies",
+               "offset_ramp", "allocation_dilation", "surface_cell")
+        return field.field_kwargs() | {k: getattr(self, k) for k in own}
+
+
+@dataclass(frozen=True)
 class RenderConfig(Settings):
     """Where samples go along a ray and how sharp the surface is. truncation: tr in metres (SDF band
     and bell width); samples span D ± band·tr (n_band of them) plus n_free in free space in front;
@@ -387,6 +423,6 @@ class ReportConfig(Settings):
 
 
 SECTIONS: tuple[type[Settings], ...] = (
-    RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, OdometryConfig, MappingConfig, KeyframeConfig,
+    RuntimeConfig, FieldConfig, ObjectFieldConfig, RenderConfig, LossWeights, TrackingConfig, OdometryConfig, MappingConfig, KeyframeConfig,
     SamplerConfig, MeshConfig, OutputConfig, TrainerConfig, ObjectiveConfig, RunDirConfig,
 )

@@ -36,6 +36,7 @@ from tivne.config import (
     LossWeights,
     MappingConfig,
     MeshConfig,
+    ObjectFieldConfig,
     ObjectiveConfig,
     OdometryConfig,
     OutputConfig,
@@ -48,6 +49,7 @@ from tivne.config import (
 )
 from tivne.evaluation import evaluate_run
 from tivne.evaluation.objective import objective_value
+from tivne.field.oracle import attach_oracle
 from tivne.masks.base import MaskProvider
 from tivne.meshing import select_mesh_times
 from tivne.render.samplers import PixelSampler
@@ -70,6 +72,7 @@ class TrainSettings:
 
     runtime: RuntimeConfig
     field: FieldConfig
+    objects: ObjectFieldConfig
     render: RenderConfig
     loss: LossWeights
     tracking: TrackingConfig
@@ -110,6 +113,7 @@ def build_system(
         run_dir=run_dir,
         seed=int(cfg.seed),
         run_config=run_config(cfg),
+        objects=s.objects,
     )
 
 
@@ -153,6 +157,7 @@ def run(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None = None)
     select_mesh_times(datamodule.view.timestamps, list(settings.mesh.times) or None)  # refuse bad times before the run
     resume = prepare_run_dir(cfg, options, run_dir, datamodule.view.timestamps)
     system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks)
+    attach_oracle(system.field, datamodule.view, settings.objects)  # field=objects: GT object poses until tracking lands
     if resume is not None:
         datamodule.start = system.resume_from(resume)
     logger = TensorBoardLogger(save_dir=str(run_dir), name="", version=RunDir.TENSORBOARD, default_hp_metric=False)

@@ -21,15 +21,17 @@ from tivne.config import (
     LossWeights,
     MappingConfig,
     MeshConfig,
+    ObjectFieldConfig,
     OdometryConfig,
     OutputConfig,
     RenderConfig,
     TrackingConfig,
 )
-from tivne.field.networks import TimeVaryingField, time_to_tau
+from tivne.field.networks import time_to_tau
+from tivne.field.objects import attach_optimizer, build_field
 from tivne.geometry import backproject
 from tivne.masks.base import MaskContext, MaskProvider, NoMasks
-from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
+from tivne.meshing import mesh_at, save_mesh, select_mesh_times
 from tivne.render.rays import View
 from tivne.render.renderer import render_image
 from tivne.render.samplers import PixelSampler
@@ -88,11 +90,12 @@ class TivNeSLAM(L.LightningModule):
         run_dir: str | Path,
         seed: int = 0,
         run_config: dict[str, Any] | None = None,
+        objects: ObjectFieldConfig | None = None,
     ) -> None:
         super().__init__()
         self.automatic_optimization = False
         self.field_cfg = field_cfg
-        self.field = TimeVaryingField(**field_cfg.field_kwargs())
+        self.field = build_field(field_cfg, objects)  # objects: field=objects (tivne.field.objects)
         self.intrinsics = intrinsics
         self.sampler = sampler
         self.keyframe_policy = keyframes
@@ -102,6 +105,7 @@ class TivNeSLAM(L.LightningModule):
         self.mesh_cfg, self.output_cfg = mesh, output
         self.run = RunDir(run_dir)
         self.mapper = Mapper(self.field, mapping)
+        attach_optimizer(self.field, self.mapper.optimizer, mapping)  # object fields join the map optimiser
         self.tracker = Tracker(tracking, odometry, render, loss)
         self.counts = TrackingCounts()
         self.db = KeyframeDatabase(keyframes.cfg.every, keyframes.cfg.max_stored)
@@ -258,7 +262,7 @@ class TivNeSLAM(L.LightningModule):
         cam = backproject(torch.stack([u[valid], v[valid]], dim=-1).float(), depth[valid], self.K)
         world = (view.pose[:3, :3] @ cam.T).T + view.pose[:3, 3]
         dynamic = None if view.dynamic is None else view.dynamic[::s, ::s][valid]
-        self.field.grid.allocate(world, dilation=self.field.allocation_dilation, dynamic=dynamic, tau=view.tau)
+        self.field.allocate(world, dynamic=dynamic, tau=view.tau)  # an ObjectField routes object depth to its objects
 
     def _log_frame(self, k: int, view: View, stats: dict[str, float], elapsed: float) -> None:
         """Per-frame scalars (against the frame index) and every ``image_every`` frames the renders."""
@@ -388,9 +392,10 @@ class TivNeSLAM(L.LightningModule):
         centres = self.poses()[:, :3, 3].numpy()
         writer = getattr(self.logger, "experiment", None) if self.logger is not None else None
         result: dict[str, Any] = {}
+        cache: dict = {}  # an ObjectField meshes its static field (and rigid objects) once
         for ts in times:
             tau = time_to_tau(ts, self.t0, self.field.time_scale)
-            mesh = extract_mesh(self.field, tau, self.mesh_cfg.resolution, culling=self.mesh_cfg, camera_centres=centres)
+            mesh = mesh_at(self.field, tau, self.mesh_cfg, centres, cache)
             save_mesh(mesh, self.run.mesh_path(ts))
             result[f"mesh_t{ts:.3f}_faces"] = int(len(mesh.faces))
             if writer is not None and hasattr(writer, "add_mesh"):
