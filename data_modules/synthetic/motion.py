@@ -7,7 +7,8 @@ otherwise. World frame: metres, z up, floor at z = 0.
 
 Object motions: :class:`Fixed`, :class:`Wobble` (multi-sine drift and tumble), :class:`Slide`
 (back and forth along a segment), :class:`Orbit` (circling; radius 0 = turning in place) and
-:class:`StopGo` (moves, stops, moves back). Camera paths: :class:`LookAtCamera` built from a
+:class:`StopGo` (moves, stops, moves back), :class:`Hinge` (a door swinging on a vertical hinge line) and
+:class:`Breathe` (a rigid motion plus a uniform breathing scale of the shape: non-rigid). Camera paths: :class:`LookAtCamera` built from a
 position and a target curve (:class:`SineCurve`, :class:`CircleCurve`, :class:`YawTarget`) plus
 optional hand-held :class:`Shake`.
 """
@@ -20,8 +21,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = [
+    "Breathe",
     "CircleCurve",
     "Fixed",
+    "Hinge",
     "LookAtCamera",
     "Motion",
     "Orbit",
@@ -216,7 +219,45 @@ class StopGo:
         return pose_matrix(rot_z(self.yaw0 + self.turn * f), a + (b - a) * f)
 
 
-Motion = Fixed | Wobble | Slide | Orbit | StopGo
+@dataclass(frozen=True)
+class Hinge:
+    """A door turning about the vertical line through ``hinge`` (x, y; its z is the door's centre
+    height). The door's local x axis points from the hinge line to its free edge, its centre
+    ``arm`` metres from the line; the angle is ``yaw0 + amplitude (1 - cos(freq s)) / 2``: it
+    swings from ``yaw0`` to ``yaw0 + amplitude`` and back, slowing at both ends."""
+
+    hinge: Vec3
+    arm: float
+    yaw0: float
+    amplitude: float
+    freq: float
+
+    def angle(self, s: float) -> float:
+        return self.yaw0 + self.amplitude * (1.0 - math.cos(self.freq * s)) / 2.0
+
+    def pose(self, s: float) -> np.ndarray:
+        R = rot_z(self.angle(s))
+        return pose_matrix(R, np.asarray(self.hinge, dtype=np.float64) + R[:, 0] * self.arm)
+
+
+@dataclass(frozen=True)
+class Breathe:
+    """``base``'s rigid motion plus a uniform scale of the shape about its centre,
+    ``1 - depth (1 - cos(freq s)) / 2``: 1 (the shape as given, its largest) down to ``1 - depth``
+    and back. Not rigid: a deformation with an exact SDF (the scaled primitive's)."""
+
+    base: Fixed | Wobble | Slide | Orbit | StopGo | Hinge
+    depth: float
+    freq: float
+
+    def pose(self, s: float) -> np.ndarray:
+        return self.base.pose(s)
+
+    def scale(self, s: float) -> float:
+        return 1.0 - self.depth * (1.0 - math.cos(self.freq * s)) / 2.0
+
+
+Motion = Fixed | Wobble | Slide | Orbit | StopGo | Hinge | Breathe
 
 
 # ----------------------------------------------------------------------------------- camera paths

@@ -24,8 +24,10 @@ from data_modules.synthetic.layout import (
     swept_xy,
 )
 from data_modules.synthetic.motion import (
+    Breathe,
     CircleCurve,
     Fixed,
+    Hinge,
     LookAtCamera,
     Motion,
     Orbit,
@@ -227,6 +229,26 @@ def _three_objects(seed: int) -> Scene:
                    "three objects: a slider, a spinner on the floor and a bobbing ball circling; shaky hand-held camera")
 
 
+def _door(seed: int) -> Scene:
+    rng = np.random.default_rng([seed, 108])
+    room = random_room(rng)
+    half = (_u(rng, 0.3, 0.36), 0.02, _u(rng, 0.42, 0.5))  # 0.6-0.72 m wide, 4 cm thin, 0.84-1.0 m tall
+    hinge = (_u(rng, -0.6, -0.4), _u(rng, 0.6, 0.9), half[2] + 0.01)
+    swing = Hinge(hinge, half[0] + 0.01, yaw0=_u(rng, -0.2, 0.0), amplitude=_u(rng, 1.2, 1.5), freq=_u(rng, 1.2, 1.8))
+    camera = _handheld(rng, room, arc=0.3, target=(0.0, 0.5, 0.5))
+    return _finish(rng, room, camera, (_mover(rng, "door", Box(half), swing),),
+                   "a thin (4 cm) door swinging 70-85 degrees on a vertical hinge and back")
+
+
+def _breathing(seed: int) -> Scene:
+    rng = np.random.default_rng([seed, 109])
+    room = random_room(rng)
+    drift = Orbit((0.0, _u(rng, 0.5, 0.7), _u(rng, 0.6, 0.7)), _u(rng, 0.15, 0.25), _u(rng, 0.3, 0.5), phase=_u(rng, 0.0, 6.28))
+    blob = _mover(rng, "blob", Sphere(_u(rng, 0.2, 0.25)), Breathe(drift, depth=_u(rng, 0.3, 0.4), freq=_u(rng, 2.0, 3.0)))
+    camera = _handheld(rng, room, arc=0.3, target=(0.0, 0.4, 0.6))
+    return _finish(rng, room, camera, (blob,), "a floating ball whose radius breathes by 30-40 % (non-rigid) while it drifts on a slow circle")
+
+
 PRESETS: dict[str, Preset] = {
     "cube": Preset(_cube, "the original scene: one tumbling cube, slow hand-held arc"),
     "big_fast": Preset(_big_fast, "large box sliding fast across the view, hand-held arc"),
@@ -238,4 +260,6 @@ PRESETS: dict[str, Preset] = {
                         {"motion_blur": 5, "exposure": 0.15}),
     "three_objects": Preset(_three_objects, "slider, spinner, circling ball; shaky camera, lateral noise, mm depth steps",
                             {"lateral": 0.7, "quantization": 0.001}),
+    "door": Preset(_door, "thin articulated object: a door swinging on its hinge, hand-held arc"),
+    "breathing": Preset(_breathing, "non-rigid object: a drifting ball whose radius breathes, hand-held arc"),
 }

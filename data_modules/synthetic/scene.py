@@ -9,12 +9,12 @@ only through :func:`place`, which poses every primitive at one instant.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
 from data_modules.synthetic.motion import LookAtCamera, Motion
-from data_modules.synthetic.shapes import Shape, box_sdf, shape_area, shape_raycast, shape_sample, shape_sdf
+from data_modules.synthetic.shapes import Shape, box_sdf, scaled, shape_area, shape_raycast, shape_sample, shape_sdf
 from data_modules.synthetic.textures import Texture
 
 __all__ = ["PARTS", "Hit", "Placed", "Room", "Scene", "SceneObject", "place", "raycast", "sample_surface", "scene_sdf"]
@@ -90,6 +90,9 @@ def place(scene: Scene, t_object: float) -> list[Placed]:
     out = []
     for k, obj in enumerate(scene.statics + scene.movers):
         T = torch.from_numpy(obj.motion.pose(t_object))
+        scale = getattr(obj.motion, "scale", None)  # a non-rigid (breathing) object: its shape at this time
+        if scale is not None:
+            obj = replace(obj, shape=scaled(obj.shape, scale(t_object)))
         out.append(Placed(k + 1, obj, T[:3, :3].contiguous(), T[:3, 3].clone(), k >= len(scene.statics)))
     return out
 

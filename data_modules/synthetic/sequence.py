@@ -62,7 +62,7 @@ class SyntheticSequence(SequenceDataset):
 
     Args:
         scene: preset name (``data_modules.synthetic.presets.PRESETS``): cube, big_fast, crossing,
-            static_room, stop_and_go, orbit_ball, fast_turn, three_objects.
+            static_room, stop_and_go, orbit_ball, fast_turn, three_objects, door, breathing.
         seed: sensor-noise realisation, and the scene layout unless ``scene_seed`` is given (the
             ``cube`` scene is fixed: its seed only selects the noise).
         num_frames: number of frames (>= 1); frame ``i`` has timestamp ``i / fps`` seconds.
@@ -240,9 +240,7 @@ class SyntheticSequence(SequenceDataset):
             ti = float(self.timestamps[i])
             pi = p
             if name is not None:
-                poses_t, poses_i = self.object_poses(t)[name], self.object_poses(ti)[name]
-                move = poses_i @ torch.linalg.inv(poses_t)
-                pi = p @ move[:3, :3].T + move[:3, 3]
+                pi = self._carry(name, p, t, ti)
             c2w = self.camera_pose(int(i))
             cam = (pi - c2w[:3, 3]) @ c2w[:3, :3]
             z = cam[:, 2]
@@ -253,6 +251,16 @@ class SyntheticSequence(SequenceDataset):
             hit = self.raycast(c2w, ti, cam[inside] / z[inside, None])
             seen[inside] |= hit.depth.reshape(-1) >= z[inside] - 1e-5 * (1.0 + z[inside])
         return seen
+
+    def _carry(self, name: str, p: torch.Tensor, t: float, ti: float) -> torch.Tensor:
+        """(N, 3) points on moving object ``name`` at time ``t`` -> where they are at ``ti`` (its
+        rigid motion, and the change of its breathing scale for a non-rigid object)."""
+        a, b = self.object_poses(t)[name], self.object_poses(ti)[name]
+        local = (p - a[:3, 3]) @ a[:3, :3]
+        scale = getattr(self.scene.movers[self.object_names.index(name)].motion, "scale", None)
+        if scale is not None:
+            local = local * (scale(self.object_speed * ti) / scale(self.object_speed * t))
+        return local @ b[:3, :3].T + b[:3, 3]
 
     # --------------------------------------------------------------------------------- rendering
 

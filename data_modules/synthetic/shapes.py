@@ -23,6 +23,7 @@ __all__ = [
     "bound_half",
     "box_sdf",
     "planar_faces",
+    "scaled",
     "shape_area",
     "shape_raycast",
     "shape_sample",
@@ -50,6 +51,15 @@ class Cylinder:
 
 
 Shape = Box | Sphere | Cylinder
+
+
+def scaled(shape: Shape, k: float) -> Shape:
+    """The shape scaled by ``k`` > 0 about its centre."""
+    if isinstance(shape, Box):
+        return Box(tuple(float(h) * k for h in shape.half))
+    if isinstance(shape, Sphere):
+        return Sphere(shape.radius * k)
+    return Cylinder(shape.radius * k, shape.half_height * k)
 
 
 def bound_half(shape: Shape) -> np.ndarray:

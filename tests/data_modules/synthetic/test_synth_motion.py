@@ -101,3 +101,19 @@ def test_yaw_target_fast_turns():
     peak = max(abs(tgt.yaw(s + 1e-4) - tgt.yaw(s - 1e-4)) / 2e-4 for s in np.linspace(1.0, 1.5, 51))
     assert peak == pytest.approx(math.pi / 2 * 1.4 / 0.5, rel=1e-3)  # cosine ease: pi/2 * angle / time
     assert tgt(0.0)[2] == pytest.approx(1.0)  # drop 0.5 m below the origin
+
+
+def test_hinge_turns_about_its_line_and_breathe_scales_on_top_of_a_rigid_motion():
+    import math as _math
+
+    from data_modules.synthetic.motion import Breathe, Fixed, Hinge
+
+    h = Hinge((0.5, 1.0, 0.4), arm=0.3, yaw0=0.0, amplitude=1.2, freq=2.0)
+    for s in (0.0, 0.4, 1.0, 3.0):
+        T = h.pose(s)
+        assert np.allclose(T[:3, 3] - T[:3, 0] * 0.3, [0.5, 1.0, 0.4])  # the hinge line never moves
+        assert np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3))
+    assert h.angle(0.0) == 0.0 and abs(h.angle(_math.pi / 2.0) - 1.2) < 1e-12
+    b = Breathe(Fixed((0.0, 0.0, 1.0)), depth=0.3, freq=1.0)
+    assert np.allclose(b.pose(2.0), Fixed((0.0, 0.0, 1.0)).pose(2.0))
+    assert b.scale(0.0) == 1.0 and abs(b.scale(_math.pi) - 0.7) < 1e-12

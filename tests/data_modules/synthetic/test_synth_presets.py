@@ -150,3 +150,34 @@ def test_three_objects_differ_in_shape_and_speed():
     assert ds.sensor.lateral > 0 and ds.sensor.quantization == 0.001
     sizes = [float(np.max(bound_half(m.shape))) for m in ds.scene.movers]
     assert max(sizes) / min(sizes) > 1.2
+
+
+def test_door_is_thin_and_swings_on_its_hinge():
+    ds = SyntheticSequence(scene="door", num_frames=90, **SMALL)
+    door = ds.scene.movers[0]
+    half = bound_half(door.shape)
+    assert isinstance(door.shape, Box) and 2 * half.min() <= 0.04 and 2 * half[0] >= 0.6
+    # The door's hinge-side edge (local x = -half_x) stays on one vertical line while the free edge sweeps.
+    edge = np.array([-half[0], 0.0, 0.0, 1.0])
+    free = np.array([half[0], 0.0, 0.0, 1.0])
+    hinge_pts = np.stack([(ds.object_poses(t)["door"].numpy() @ edge)[:3] for t in ds.timestamps])
+    free_pts = np.stack([(ds.object_poses(t)["door"].numpy() @ free)[:3] for t in ds.timestamps])
+    assert np.ptp(hinge_pts, axis=0).max() < 0.025  # within the 1 cm gap's circle
+    yaw = np.unwrap([math.atan2(*ds.object_poses(t)["door"].numpy()[1::-1, 0]) for t in ds.timestamps])
+    assert math.degrees(np.ptp(yaw)) > 60 and np.ptp(free_pts[:, :2], axis=0).max() > 0.5
+
+
+def test_breathing_ball_changes_radius_with_an_exact_sdf_and_visibility():
+    ds = SyntheticSequence(scene="breathing", num_frames=90, **SMALL)
+    radii = []
+    for t in (0.0, 0.6, 1.2):
+        c = ds.object_poses(t)["blob"][:3, 3]
+        pts = ds.sample_surface(t, 200, name="blob", seed=1)
+        r = (pts - c).norm(dim=-1)
+        assert float(np.ptp(r.numpy())) < 1e-9  # a sphere at each time
+        assert float(ds.sdf(pts, t, part="dynamic").abs().max()) < 1e-9
+        radii.append(float(r[0]))
+    assert max(radii) / min(radii) > 1.15  # non-rigid: the radius breathes
+    # A point seen at t is carried to each frame's time with the scale, so what a frame sees stays seen.
+    seen = ds.visible(ds.sample_surface(0.6, 400, name="blob", seed=2), 0.6, window=0.3, name="blob")
+    assert 0.2 < float(seen.float().mean()) < 0.8

@@ -81,3 +81,11 @@ def test_samples_are_area_uniform_on_the_surface(shape):
     for face, offset, area in planar_faces(shape):
         on_face = (p[:, face // 2] - offset).abs() < 1e-12
         assert float(on_face.float().mean()) == pytest.approx(area / total, abs=0.012)
+
+
+def test_scaled_shapes_scale_every_extent():
+    from data_modules.synthetic.shapes import scaled
+
+    assert scaled(Box((0.1, 0.2, 0.3)), 0.5) == Box((0.05, 0.1, 0.15))
+    assert scaled(Sphere(0.2), 1.5) == Sphere(0.2 * 1.5)
+    assert scaled(Cylinder(0.1, 0.4), 0.5) == Cylinder(0.05, 0.2)
