@@ -13,9 +13,9 @@ import trimesh
 
 from tivne.config import MeshConfig
 from tivne.field.networks import FieldOutputs, TimeVaryingField
+from tivne.field.objects import ObjectField, ObjectSlot
 from tivne.field.voxels import unpack_keys
 from tivne.mesh import mesh_run, select_mesh_times
-from tivne.field.objects import ObjectField, ObjectSlot
 from tivne.meshing import cull_backfaces, extract_mesh, mesh_at, save_mesh
 from tivne.slam.checkpoint import save_checkpoint
 

@@ -25,6 +25,7 @@ import torch
 from data_modules.frame import DatasetError
 from data_modules.io import atomic_write
 from tivne.field.networks import TimeVaryingField
+from tivne.field.object_state import restore_objects
 from tivne.masks.base import MaskProvider
 from tivne.render.rays import View
 from tivne.slam.frontend import Tracker
@@ -110,6 +111,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
     try:
         field = TimeVaryingField(**payload["field_kwargs"])
         load_field_state(field, payload["field_state"])
+        field = restore_objects(field, payload["field_kwargs"], payload.get("extra"))  # field=objects: its object fields
     except (KeyError, TypeError, RuntimeError) as exc:  # written by an incompatible version
         first_line = str(exc).strip().splitlines()[-1].strip()
         raise DatasetError(path, f"checkpoint does not match this version of the field ({first_line})") from None

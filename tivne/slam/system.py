@@ -28,6 +28,7 @@ from tivne.config import (
     TrackingConfig,
 )
 from tivne.field.networks import time_to_tau
+from tivne.field.object_state import objects_payload
 from tivne.field.objects import attach_optimizer, build_field
 from tivne.geometry import backproject
 from tivne.masks.base import MaskContext, MaskProvider, NoMasks
@@ -347,7 +348,7 @@ class TivNeSLAM(L.LightningModule):
         """checkpoints/slam.pt: the field and trajectory, and (``resumable``) the whole run state."""
         return save_checkpoint(
             self.run.checkpoint, self.field, self.field_cfg.field_kwargs(), self.trajectory.timestamps(),
-            self.poses(), self.t0, extra={"keyframes": self.db.frame_ids()},
+            self.poses(), self.t0, extra={"keyframes": self.db.frame_ids(), **objects_payload(self.field)},
             resume=run_state(self) if resumable else None, config=self.run_config,
         )
 
