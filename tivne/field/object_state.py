@@ -88,3 +88,17 @@ def restore_objects(field: TimeVaryingField, field_kwargs: dict[str, Any], extra
 def grid_state(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """The ``grid.*`` entries of a field's state dict, without the prefix."""
     return {k[len("grid."):]: v for k, v in state.items() if k.startswith("grid.")}
+
+
+def load_objects_into(field: TimeVaryingField, extra: dict[str, Any] | None) -> None:
+    """Resume: give a freshly built :class:`ObjectField` (its tracks already set, its optimiser
+    bound) the saved object fields, created in their saved order so the optimiser's parameter
+    groups line up with the saved optimiser state. A no-op for other fields or without objects."""
+    saved = (extra or {}).get("objects")
+    if not saved or not isinstance(field, ObjectField):
+        return
+    for i, slot in saved["slots"].items():
+        live = field._slot(int(i), float(slot["tau0"])).field
+        state = {k: v.to(field.grid.voxel_keys.device) for k, v in slot["state"].items()}
+        live.grid.load_sparse_state(grid_state(state))
+        live.load_state_dict(state)

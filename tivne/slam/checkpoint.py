@@ -25,7 +25,7 @@ import torch
 from data_modules.frame import DatasetError
 from data_modules.io import atomic_write
 from tivne.field.networks import TimeVaryingField
-from tivne.field.object_state import restore_objects
+from tivne.field.object_state import load_objects_into, restore_objects
 from tivne.masks.base import MaskProvider
 from tivne.render.rays import View
 from tivne.slam.frontend import Tracker
@@ -206,6 +206,7 @@ def restore_run_state(run: ResumableRun, payload: dict[str, Any], device: torch.
     state = payload["resume"]
     rng = state["rng"]
     load_field_state(run.field, to_device(payload["field_state"], device))
+    load_objects_into(run.field, payload.get("extra"))  # field=objects: before the optimiser state
     state = to_device({k: v for k, v in state.items() if k not in ("rng", "generator")}, device)
     run.mapper.load_state_dict(state["mapper"])  # after the field: E has its saved rows
     run.db.load_state_dict(state["keyframes"])

@@ -6,8 +6,9 @@ import torch
 from test_objects import LinearTrack, small_object_field
 
 from tivne.field.networks import TimeVaryingField
-from tivne.field.object_state import RecordedTrack, objects_payload, restore_objects
-from tivne.field.objects import ObjectField
+from tivne.config import MappingConfig
+from tivne.field.object_state import RecordedTrack, load_objects_into, objects_payload, restore_objects
+from tivne.field.objects import ObjectField, attach_optimizer
 
 
 def test_objects_survive_the_payload_round_trip():
@@ -34,3 +35,25 @@ def test_objects_survive_the_payload_round_trip():
         a, b = field(pts, torch.full((2,), 0.2)), back(pts, torch.full((2,), 0.2))
     assert a.valid.all() and torch.allclose(a.sdf, b.sdf) and torch.allclose(a.rgb, b.rgb)
     assert restore_objects(static, kwargs, {}) is static
+
+
+def test_a_resumed_object_field_lines_up_with_the_saved_optimiser():
+    def built():
+        field = small_object_field()
+        opt = torch.optim.Adam([{"params": [field.grid.embeddings]}], foreach=True)
+        attach_optimizer(field, opt, MappingConfig())
+        return field, opt
+
+    field, opt = built()
+    T = LinearTrack().pose_at(0.2)
+    pts = (torch.rand(40, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(2)) * 0.1 @ T[:3, :3].T + T[:3, 3]).float()
+    field.allocate(pts, torch.ones(40, dtype=torch.bool), 0.2)
+    field(pts, torch.full((40,), 0.2)).sdf.sum().backward()
+    opt.step()
+    payload = objects_payload(field)
+    fresh, fresh_opt = built()
+    load_objects_into(fresh, payload)
+    fresh_opt.load_state_dict(opt.state_dict())  # raises when the groups do not line up
+    assert len(fresh_opt.param_groups) == 3 and fresh.slots[1].tau0 == field.slots[1].tau0
+    with torch.no_grad():
+        assert torch.allclose(fresh(pts, torch.full((40,), 0.2)).sdf, field(pts, torch.full((40,), 0.2)).sdf)
