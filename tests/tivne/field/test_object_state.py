@@ -5,8 +5,8 @@ from __future__ import annotations
 import torch
 from test_objects import LinearTrack, small_object_field
 
-from tivne.field.networks import TimeVaryingField
 from tivne.config import MappingConfig
+from tivne.field.networks import TimeVaryingField
 from tivne.field.object_state import RecordedTrack, load_objects_into, objects_payload, restore_objects
 from tivne.field.objects import ObjectField, attach_optimizer
 
