@@ -138,10 +138,6 @@ class ObjectField(TimeVaryingField):
         optimizer = self._optimizer
         field.grid.grow_callbacks.append(lambda old, new: pad_moments(optimizer, field.grid.embeddings, old, new))
 
-    def object_parameters(self) -> Iterator[torch.nn.Parameter]:
-        for slot in self.slots.values():
-            yield from slot.field.parameters()
-
     def _slot(self, object_id: int, tau: float) -> ObjectSlot:
         if object_id not in self.slots:
             device = self.grid.voxel_keys.device
