@@ -11,14 +11,15 @@ The YAML files under ``conf/`` only *choose* between presets; the defaults thems
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 from dataclasses import dataclass
 from typing import ClassVar
 
 from data_modules.sensor import KINECT_SIGMA
+from tivne.config_optional import BackendConfig, ObjectFieldConfig, ObjectsConfig, ViewerConfig
 from tivne.settings import ConfigError, Settings, default_tree, setting
 
-__all__ = ["ConfigError", "Settings", "default_tree", "setting", "SECTIONS"]
+__all__ = ["ConfigError", "Settings", "default_tree", "setting", "SECTIONS", "BackendConfig", "ObjectFieldConfig", "ObjectsConfig",
+           "ViewerConfig"]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -211,34 +212,6 @@ class OdometryConfig(Settings):
 
 
 @dataclass(frozen=True)
-class ObjectsConfig(Settings):
-    """Rigid moving objects (:class:`tivne.slam.objects.ObjectTracker`): track: one SE(3) track per
-    object, written to objects/<id>.txt. source: "dataset" (the frames' instance ids, Co-Fusion
-    mask_id, the synthetic family) or "geometric" (connected, depth-continuous segments of the
-    frame's dynamic mask, identities by overlap under the predicted motion). min_pixels: smaller
-    instances are ignored. levels: odometry pyramid levels on an object's pixels (objects are
-    small: the coarsest level must keep pixels). depth_smoothing: radius (pixels) of the mean filter
-    over the object's own depths before its odometry (0 = off; axial noise biases the object's
-    rotation towards zero, the errors-in-variables effect, on few pixels). keyframe_overlap: a new reference observation when
-    the odometry's overlap with the current one falls below this. min_iou: a segment continues a
-    track when its overlap with the track's predicted mask reaches this. reid_distance: a segment
-    re-identifies a lost track whose predicted centre is this close (m) and whose size agrees
-    within reid_size_ratio. max_gap_s: a track unseen longer is lost (then only re-identified)."""
-
-    section: ClassVar[str] = "objects"
-    track: bool = False
-    source: str = setting("dataset", choices=("dataset", "geometric"))
-    min_pixels: int = setting(200, ge=16)
-    levels: int = setting(2, ge=1, le=4)
-    depth_smoothing: int = setting(1, ge=0, le=4)
-    keyframe_overlap: float = setting(0.85, ge=0, le=1)
-    min_iou: float = setting(0.2, gt=0, le=1)
-    reid_distance: float = setting(0.25, gt=0)
-    reid_size_ratio: float = setting(1.6, ge=1)
-    max_gap_s: float = setting(0.2, gt=0)
-
-
-@dataclass(frozen=True)
 class MappingConfig(Settings):
     """iters: steps per mapping round; first_iters: steps on the first frame alone. rays per step,
     current_share of them from the current frame, the rest split over the picked keyframes. every:
@@ -422,35 +395,6 @@ class ObjectiveConfig(Settings):
 
 
 @dataclass(frozen=True)
-class ViewerConfig(Settings):
-    """``viewer=rerun`` (:mod:`tivne.viewer`): a rerun recording of the run. sink: 'file' (run_dir/
-    viewer.rrd, headless), 'spawn' (a local viewer window; needs a display) or 'serve' (gRPC on
-    grpc_port for ``rerun --connect``, plus the web viewer on web_port; a viewer that connects late
-    still gets what came before, up to server_memory_limit). image_every: colour / depth / mask /
-    rendered images every n frames (null = output.image_every; 0 = never); rendered: also the
-    colour and depth rendered at the estimated pose (a render of the frame, at render_stride);
-    trajectory_every: re-log the trajectory line strips every n frames; map_points: at most this
-    many points of the map at each mapping round (0 = none), map_every: every n-th mapping round."""
-
-    section: ClassVar[str] = "viewer"
-    kind: str = setting("none", choices=("none", "rerun"))
-    sink: str = setting("file", choices=("file", "spawn", "serve"))
-    image_every: int | None = setting(None, ge=0)
-    rendered: bool = True
-    render_stride: int = setting(2, ge=1)
-    trajectory_every: int = setting(5, ge=1)
-    map_points: int = setting(20000, ge=0)
-    map_every: int = setting(5, ge=1)
-    grpc_port: int = setting(9876, ge=1, le=65535)
-    web_port: int = setting(9090, ge=1, le=65535)
-    server_memory_limit: str = "1GiB"
-
-    def check(self) -> None:
-        if self.kind == "rerun" and importlib.util.find_spec("rerun") is None:
-            raise ConfigError("viewer=rerun: rerun-sdk is not installed; pip install -e '.[viewer]'")
-
-
-@dataclass(frozen=True)
 class ReportConfig(Settings):
     """``python -m tivne.report``: frames: how many processed frames (evenly spaced) the render / GT /
     depth-error contact sheet re-renders from the checkpoint (0 = none); render_stride: their pixel
@@ -464,48 +408,8 @@ class ReportConfig(Settings):
     mesh_faces: int = setting(400_000, ge=1)
 
 
-@dataclass(frozen=True)
-class BackendConfig(Settings):
-    """The keyframe pose graph (:mod:`tivne.slam.backend`). method: 'none' (keyframe poses are the
-    tracked ones) or 'graph' (iSAM2 over keyframe poses; needs gtsam, the ``graph`` extra).
-    Edges: each new keyframe is aligned by the dense odometry to its predecessor and to up to
-    ``covisible`` more of the last ``loop_min_gap`` keyframes whose view it overlaps (share of its
-    pixels reprojecting into theirs >= min_overlap). Loop closures: up to ``loop_candidates`` older
-    keyframes within loop_max_distance_m / loop_max_angle_deg of it and overlapping, verified from a
-    wider basin (loop_extra_levels more pyramid levels). An edge is kept when the odometry succeeds,
-    its inlier ratio is >= min_inlier_ratio and it agrees with the current estimate within
-    max_edge_m / max_edge_deg (loops: loop_max_correction_m / _deg). information_scale: factor on
-    the odometry's JᵀWJ (it treats pixels as independent, which they are not); robust / robust_k:
-    the kernel on the whitened error of every edge but the predecessor's. refit_iters: mapping
-    steps over the keyframes a correction moved by more than refit_min_m (the stale part of the field)."""
-
-    section: ClassVar[str] = "backend"
-    method: str = setting("none", choices=("none", "graph"))
-    covisible: int = setting(2, ge=0)
-    min_overlap: float = setting(0.5, ge=0, le=1)
-    loop_min_gap: int = setting(8, ge=2)
-    loop_candidates: int = setting(1, ge=0)
-    loop_max_distance_m: float = setting(0.5, gt=0)
-    loop_max_angle_deg: float = setting(30.0, gt=0)
-    loop_extra_levels: int = setting(1, ge=0, le=3)
-    min_inlier_ratio: float = setting(0.6, ge=0, le=1)
-    max_edge_m: float = setting(0.05, gt=0)
-    max_edge_deg: float = setting(3.0, gt=0)
-    loop_max_correction_m: float = setting(0.15, gt=0)
-    loop_max_correction_deg: float = setting(8.0, gt=0)
-    information_scale: float = setting(0.01, gt=0)
-    robust: str = setting("cauchy", choices=("cauchy", "huber"))
-    robust_k: float = setting(3.0, gt=0)
-    refit_iters: int = setting(20, ge=0)
-    refit_min_m: float = setting(0.01, ge=0)
-
-    def check(self) -> None:
-        if self.method == "graph" and importlib.util.find_spec("gtsam") is None:
-            raise ConfigError("backend.method=graph needs gtsam, which is not installed: pip install 'tivne[graph]' (or pip install gtsam)")
-
-
 SECTIONS: tuple[type[Settings], ...] = (
-    RuntimeConfig, FieldConfig, RenderConfig, LossWeights, TrackingConfig, FieldTrackingConfig, OdometryConfig, MappingConfig,
-    KeyframeConfig, SamplerConfig, MeshConfig, OutputConfig, AllocationConfig, TrainerConfig, ObjectiveConfig, RunDirConfig,
-    ObjectsConfig, ViewerConfig, BackendConfig,
+    RuntimeConfig, FieldConfig, ObjectFieldConfig, RenderConfig, LossWeights, TrackingConfig, FieldTrackingConfig, OdometryConfig,
+    MappingConfig, KeyframeConfig, SamplerConfig, MeshConfig, OutputConfig, AllocationConfig, TrainerConfig, ObjectiveConfig,
+    RunDirConfig, ObjectsConfig, ViewerConfig, BackendConfig,
 )

@@ -21,7 +21,7 @@ from omegaconf import DictConfig
 from data_modules.errors import overrides_checked
 from tivne.cli import check_known_keys, mesh_settings, one_line_errors, quote_run_dir, register_defaults
 from tivne.config import MeshConfig
-from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
+from tivne.meshing import mesh_at, save_mesh, select_mesh_times
 from tivne.slam.checkpoint import camera_centres, load_checkpoint
 from tivne.slam.outputs import RunDir
 from tivne.utils import require_device
@@ -47,9 +47,10 @@ def mesh_run(
     field, meta = load_checkpoint(run.checkpoint, device=device)
     run.check_writable()  # before marching cubes, not after
     written = []
+    cache: dict = {}  # field=objects: the static field and rigid objects are meshed once
     for ts in select_mesh_times(meta["timestamps"], list(cfg.times) or None, every):
         tau = meta["clock"].tau(ts)
-        mesh = extract_mesh(field, tau, cfg.resolution, culling=cfg, camera_centres=camera_centres(meta))
+        mesh = mesh_at(field, tau, cfg, camera_centres(meta), cache)
         path = save_mesh(mesh, run.mesh_path(ts))
         written.append((ts, len(mesh.vertices), len(mesh.faces), path))
     return written

@@ -25,6 +25,7 @@ from data_modules.io import atomic_write
 from tivne.config import ConfigError, MeshConfig
 from tivne.field.lattice import Lattice, brick_inside, bricks_for_voxels, lattice_for_voxels, observed_space
 from tivne.field.networks import TimeVaryingField
+from tivne.field.objects import ObjectField, static_only
 from tivne.field.voxels import CORNER_OFFSETS
 
 # Lattice points per batch of bricks: ~60 bytes of temporaries each (keys, volume, masks), ~120 MB.
@@ -295,6 +296,43 @@ def extract_mesh(
     if culling is not None and culling.backfaces and camera_centres is not None:
         mesh = cull_backfaces(mesh, camera_centres)
     return mesh if len(mesh.faces) else empty_mesh()
+
+
+def mesh_at(
+    field: TimeVaryingField, tau: float, cfg: MeshConfig, camera_centres: np.ndarray | None = None, cache: dict | None = None
+) -> trimesh.Trimesh:
+    """The scene's mesh at τ with ``cfg``'s resolution and culling (:func:`extract_mesh`).
+
+    For an :class:`ObjectField`: the static field's mesh (meshed once into ``cache`` when the
+    static field has no time) plus, for each object observed within its window of τ, the object
+    field's mesh in its own frame (at ``field.mesh_resolution``; cached too when it has no time)
+    placed by T_wo(τ) -- no sweep trails by construction.
+    """
+    if not isinstance(field, ObjectField):
+        return extract_mesh(field, tau, cfg.resolution, culling=cfg, camera_centres=camera_centres)
+    cache = {} if cache is None else cache
+    key = ("static", None if not field.time else float(tau))
+    if key not in cache:
+        with static_only(field):
+            cache[key] = extract_mesh(field, tau, cfg.resolution, culling=cfg, camera_centres=camera_centres)
+    parts = [cache[key]]
+    own = MeshConfig(resolution=field.mesh_resolution, min_hits=cfg.min_hits, dynamic_window=None, near_surface=cfg.near_surface,
+                     backfaces=False)  # cameras see an object from every side of its own frame
+    for object_id, slot in field.slots.items():
+        track = field.tracks.get(object_id)
+        if track is None or not track.observed_near(tau, field.window):
+            continue
+        rel = float(tau) - slot.tau0
+        okey = (object_id, rel if slot.field.time else None)
+        if okey not in cache:
+            cache[okey] = extract_mesh(slot.field, rel, own.resolution, culling=own)
+        placed = cache[okey].copy()
+        placed.apply_transform(track.pose_at(tau).double().numpy())
+        parts.append(placed)
+    parts = [m for m in parts if len(m.faces)]
+    if not parts:
+        return empty_mesh()
+    return parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
 
 
 def save_mesh(mesh: trimesh.Trimesh, path: str | Path) -> Path:

@@ -11,12 +11,13 @@ import pytest
 import torch
 import trimesh
 
-from tivne.config import MeshConfig
+from tivne.config import FieldConfig, MeshConfig
 from tivne.field.clock import Clock
 from tivne.field.networks import FieldOutputs, TimeVaryingField
+from tivne.field.objects import ObjectField, ObjectSlot
 from tivne.field.voxels import unpack_keys
 from tivne.mesh import mesh_run, select_mesh_times
-from tivne.meshing import cull_backfaces, extract_mesh, save_mesh
+from tivne.meshing import cull_backfaces, extract_mesh, mesh_at, save_mesh
 from tivne.slam.checkpoint import save_checkpoint
 
 RADIUS = 0.3
@@ -353,3 +354,31 @@ def test_near_surface_keeps_a_moving_object_seen_around_the_mesh_time():
     assert not field.grid.near_surface(pts).any()
     at1 = extract_mesh(field, 1.0, resolution=0.02, culling=MeshConfig(min_hits=1, dynamic_window=0.2))
     assert at1.is_watertight and len(at1.faces) > 100  # kept: on the moving object seen then
+
+
+class MovingTrack:
+    """Object-to-world poses (x = τ, z = 1, yaw = τ), observed for τ in [0, 2]."""
+
+    box = torch.tensor([[-RADIUS] * 3, [RADIUS] * 3], dtype=torch.float64)
+
+    def pose_at(self, tau: float) -> torch.Tensor:
+        c, s = np.cos(tau), np.sin(tau)
+        return torch.tensor([[c, -s, 0, tau], [s, c, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]], dtype=torch.float64)
+
+    def observed_near(self, tau: float, window: float) -> bool:
+        return -window <= tau <= 2 + window
+
+
+def test_a_mesh_at_t_places_the_object_at_its_pose_and_meshes_it_once():
+    field = ObjectField(FieldConfig(), window=0.1, mesh_resolution=0.02, time=False, voxel_size=0.1, capacity=64)
+    field.set_tracks({1: MovingTrack()})
+    field.slots[1] = ObjectSlot(analytic_sphere(), tau0=0.0)
+    cfg = MeshConfig(resolution=0.02, min_hits=0, near_surface=False, backfaces=False)
+    cache: dict = {}
+    for tau in (0.5, 1.5):
+        mesh = mesh_at(field, tau, cfg, cache=cache)
+        centre = np.array([tau, 0.0, 1.0])
+        r = np.linalg.norm(np.asarray(mesh.vertices) - centre, axis=1)
+        assert len(mesh.faces) > 500 and np.abs(r - RADIUS).max() < 0.01
+    assert sorted(k for k in cache if k[0] != "static") == [(1, None)]  # a rigid object is meshed once
+    assert len(mesh_at(field, 3.0, cfg, cache=cache).faces) == 0  # not observed around τ = 3: not placed

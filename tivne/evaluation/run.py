@@ -24,7 +24,7 @@ from tivne.evaluation.images import image_metrics, null_images, render_frames
 from tivne.evaluation.objects import object_section
 from tivne.evaluation.surfaces import flatten_mesh_metrics, mesh_time_metrics
 from tivne.field.networks import TimeVaryingField
-from tivne.meshing import TIME_TOLERANCE_S, extract_mesh, select_mesh_times
+from tivne.meshing import TIME_TOLERANCE_S, mesh_at, select_mesh_times
 from tivne.metrics.trajectory import ATEResult, ate_from_trajectories
 from tivne.slam.checkpoint import camera_centres, load_checkpoint
 from tivne.slam.outputs import RunDir, jsonable
@@ -169,6 +169,7 @@ def run_meshes(
         {t: mesh} and a reason when some time has neither a file nor a checkpoint (else None).
     """
     meshes: dict[float, trimesh.Trimesh] = {}
+    cache: dict = {}
     for t in times:
         path = record.run.mesh_path(t)
         if prefer_files and path.is_file():
@@ -176,7 +177,7 @@ def run_meshes(
             meshes[t] = loaded if isinstance(loaded, trimesh.Trimesh) else trimesh.Trimesh()
         elif record.field is not None:
             tau = record.meta["clock"].tau(t)
-            meshes[t] = extract_mesh(record.field, tau, mesh.resolution, culling=mesh, camera_centres=camera_centres(record.meta))
+            meshes[t] = mesh_at(record.field, tau, mesh, camera_centres(record.meta), cache)
     missing = [t for t in times if t not in meshes]
     reason = f"no mesh file and no checkpoint ({RunDir.CHECKPOINT}) for t={missing}" if missing else None
     return meshes, reason

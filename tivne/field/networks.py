@@ -132,6 +132,12 @@ class TimeVaryingField(nn.Module):
         self.canonical_time = bool(canonical_time) and self.time
         self.canonical = CanonicalMLP(embed_dim, time_dim if self.canonical_time else 0, hidden_dim, num_hidden)
 
+    @torch.no_grad()
+    def allocate(self, points: torch.Tensor, dynamic: torch.Tensor | None = None, tau: float = 0.0, dilation: int = 1) -> int:
+        """Allocate voxels for (N, 3) depth points observed at τ (``dynamic`` (N,) bool: on a moving
+        object), ``dilation`` voxels around them; returns the number of new voxels."""
+        return self.grid.allocate(points, dilation=dilation, dynamic=dynamic, tau=tau)
+
     def forward(self, points: torch.Tensor, tau: torch.Tensor) -> FieldOutputs:
         """points: (P, 3) world, tau: (P,) normalised time -> FieldOutputs."""
         e, valid = self.grid.lookup(points)

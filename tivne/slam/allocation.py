@@ -6,7 +6,7 @@ from __future__ import annotations
 import torch
 
 from tivne.config import AllocationConfig
-from tivne.field.voxels import SparseVoxelGrid
+from tivne.field.networks import TimeVaryingField
 from tivne.geometry import backproject
 from tivne.render.rays import View
 
@@ -19,7 +19,9 @@ class VoxelAllocator:
         self.cfg = cfg
 
     @torch.no_grad()
-    def allocate(self, grid: SparseVoxelGrid, view: View, K: torch.Tensor) -> None:
+    def allocate(self, field: TimeVaryingField, view: View, K: torch.Tensor) -> None:
+        """Through the field's own ``allocate`` (an object field routes moving depth into the
+        objects' grids, in their coordinates)."""
         s = self.cfg.stride
         depth = view.depth[::s, ::s]
         h, w = depth.shape
@@ -28,4 +30,4 @@ class VoxelAllocator:
         cam = backproject(torch.stack([u[valid], v[valid]], dim=-1).float(), depth[valid], K)
         world = (view.pose[:3, :3] @ cam.T).T + view.pose[:3, 3]
         dynamic = None if view.dynamic is None else view.dynamic[::s, ::s][valid]
-        grid.allocate(world, dilation=self.cfg.dilation, dynamic=dynamic, tau=view.tau)
+        field.allocate(world, dynamic, view.tau, dilation=self.cfg.dilation)

@@ -27,6 +27,7 @@ from data_modules.io import atomic_write
 from tivne.config import ConfigError, FieldConfig
 from tivne.field.clock import Clock
 from tivne.field.networks import TimeVaryingField
+from tivne.field.object_state import restore_objects
 from tivne.slam.outputs import RunDirError, config_differences, describe_differences
 
 # 1: field + trajectory; 2: + the resume state and the run's config; 3: the field's config section
@@ -109,6 +110,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
     try:
         field = TimeVaryingField(FieldConfig.from_mapping(payload["field_config"]))
         load_field_state(field, payload["field_state"])
+        field = restore_objects(field, payload.get("extra"))  # field=objects: its object fields
     except (KeyError, TypeError, RuntimeError, ConfigError) as exc:  # written by an incompatible version
         first_line = str(exc).strip().splitlines()[-1].strip()
         raise DatasetError(path, f"checkpoint does not match this version of the field ({first_line})") from None

@@ -127,7 +127,7 @@ class SlamLoop:
                 view = dataclasses.replace(view, dynamic=self.masks(frame, context))
         self.keyframes.set_masks(self.masks.revise(self.keyframes.views(), view, K))  # what this frame shows about earlier keyframes
         if k == 0:  # the first frame is mapped before anything else: its voxels first
-            self.allocator.allocate(self.field.grid, view, K)
+            self.allocator.allocate(self.field, view, K)
         keyframe = self.keyframes.should_insert(k)
         correction = None
         if keyframe:
@@ -144,7 +144,7 @@ class SlamLoop:
                 view = dataclasses.replace(view, pose=mapping.poses[k])
             self.last_mapped_tau = view.tau
         if k > 0:
-            self.allocator.allocate(self.field.grid, view, K)
+            self.allocator.allocate(self.field, view, K)
         new_reference = self.tracker.update_reference(view, K, result, keyframe)
         return view, keyframe, new_reference, mapping, correction
 
@@ -161,7 +161,7 @@ class SlamLoop:
 
         ids = self.keyframes.frame_ids()
         c = follow_corrections(poses, self.keyframes, lambda i: self.keyframes.view(ids.index(i)),
-                               lambda v: self.allocator.allocate(self.field.grid, v, K), refit, cfg.refit_min_m, self.policy.cfg.window + 1)
+                               lambda v: self.allocator.allocate(self.field, v, K), refit, cfg.refit_min_m, self.policy.cfg.window + 1)
         self.backend.record(c.max_displacement_m, refit=bool(c.refit and cfg.refit_iters))
         return c
 

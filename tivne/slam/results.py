@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from tivne.config import MeshConfig, OutputConfig
-from tivne.meshing import extract_mesh, save_mesh, select_mesh_times
+from tivne.field.object_state import objects_payload
+from tivne.meshing import mesh_at, save_mesh, select_mesh_times
 from tivne.render.rays import View
 from tivne.render.renderer import render_image
 from tivne.slam.checkpoint import global_rng_state, save_checkpoint
@@ -62,7 +63,7 @@ class RunWriter:
         resume = (loop.state_dict() | {"rng": global_rng_state()}) if resumable else None
         return save_checkpoint(
             self.run.checkpoint, loop.field, loop.trajectory.timestamps(), loop.poses.all(), loop.clock,
-            extra={"keyframes": loop.keyframes.frame_ids()}, resume=resume, config=self.run_config,
+            extra={"keyframes": loop.keyframes.frame_ids(), **objects_payload(loop.field)}, resume=resume, config=self.run_config,
         )
 
     def finish(self, loop: SlamLoop, tensorboard: Any = None) -> dict[str, Any]:
@@ -108,8 +109,9 @@ class RunWriter:
         times = select_mesh_times(stamps, list(self.mesh.times) or None)
         centres = loop.poses.all()[:, :3, 3].numpy()
         result: dict[str, Any] = {}
+        cache: dict = {}  # field=objects: the static field and rigid objects are meshed once
         for ts in times:
-            mesh = extract_mesh(loop.field, loop.clock.tau(ts), self.mesh.resolution, culling=self.mesh, camera_centres=centres)
+            mesh = mesh_at(loop.field, loop.clock.tau(ts), self.mesh, centres, cache)
             save_mesh(mesh, self.run.mesh_path(ts))
             self.observer.on_mesh(ts, mesh)
             result[f"mesh_t{ts:.3f}_faces"] = int(len(mesh.faces))

@@ -32,6 +32,7 @@ from tivne.config import (
     LossWeights,
     MappingConfig,
     MeshConfig,
+    ObjectFieldConfig,
     ObjectiveConfig,
     ObjectsConfig,
     OdometryConfig,
@@ -45,7 +46,8 @@ from tivne.config import (
     ViewerConfig,
 )
 from tivne.evaluation import evaluate_run
-from tivne.field.networks import TimeVaryingField
+from tivne.field.objects import attach_optimizer, build_field
+from tivne.field.oracle import attach_oracle
 from tivne.inputs import check_run_inputs
 from tivne.limits import check_run_size
 from tivne.masks.base import MaskProvider
@@ -79,6 +81,7 @@ class TrainSettings:
 
     runtime: RuntimeConfig
     field: FieldConfig
+    object_field: ObjectFieldConfig
     render: RenderConfig
     loss: LossWeights
     tracking: TrackingConfig
@@ -106,12 +109,14 @@ class TrainSettings:
 def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvider | None = None, seed: int = 0) -> SlamLoop:
     """The SLAM loop with every component built from its checked section."""
     s = settings
-    field = TimeVaryingField(s.field)
+    field = build_field(s.field, s.object_field)
+    mapper = Mapper(field, s.mapping, PixelSampler(s.sampler), s.render, s.loss)
+    attach_optimizer(field, mapper.optimizer, s.mapping)  # field=objects: object fields join the map optimiser
     return SlamLoop(
         field=field,
         intrinsics=intrinsics,
         tracker=Tracker(s.tracking, s.field_tracking, s.odometry, s.render, s.loss),
-        mapper=Mapper(field, s.mapping, PixelSampler(s.sampler), s.render, s.loss),
+        mapper=mapper,
         keyframes=KeyframeStore(s.keyframe),
         policy=KeyframePolicy(s.keyframe),
         allocator=VoxelAllocator(s.allocation),
@@ -195,6 +200,7 @@ def run_locked(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None 
     resume = prepare_run_dir(cfg, options, run_dir, datamodule.view.timestamps)
     viewer = make_observer(settings.viewer, run_dir, datamodule.intrinsics, settings.output.image_every)  # viewer=rerun
     system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks, observer=viewer)
+    attach_oracle(system.field, datamodule.view, settings.object_field)  # field=objects: GT object poses until tracked ones
     if resume is not None:
         datamodule.start = system.resume_from(resume)
     logger = TensorBoardLogger(save_dir=str(run_dir), name="", version=RunDir.TENSORBOARD, default_hp_metric=False)

@@ -10,6 +10,7 @@ from typing import Any
 import lightning as L
 
 from data_modules.frame import Frame
+from tivne.field.object_state import load_objects_into
 from tivne.slam.checkpoint import load_field_state, set_global_rng_state, to_device
 from tivne.slam.loop import SlamLoop
 from tivne.slam.results import RunWriter, render_panels
@@ -92,5 +93,6 @@ def restore(loop: SlamLoop, payload: dict[str, Any]) -> dict[str, Any]:
     data loader draws from the torch RNG when it starts)."""
     state = payload["resume"]
     load_field_state(loop.field, to_device(payload["field_state"], loop.device))
+    load_objects_into(loop.field, payload.get("extra"))  # field=objects: before the optimiser state
     loop.load_state_dict(to_device({k: v for k, v in state.items() if k not in ("rng", "generator")}, loop.device) | {"generator": state["generator"]})
     return state["rng"]

@@ -4,7 +4,6 @@ edges, a wrong closure rejected or outvoted, resume of the graph from plain tens
 from __future__ import annotations
 
 import dataclasses
-
 import math
 
 import pytest
