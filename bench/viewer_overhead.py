@@ -24,7 +24,7 @@ sys.path.insert(0, str(REPO))
 
 from hydra import compose, initialize_config_dir  # noqa: E402
 
-import tivne.train  # noqa: E402
+import tivne.slam.run  # noqa: E402
 from data_modules.tables import read_tum_trajectory  # noqa: E402
 from tivne.cli import register_defaults  # noqa: E402
 from tivne.slam.run import run  # noqa: E402
@@ -58,8 +58,8 @@ class Timed:
         return timed
 
 
-make_observer = tivne.train.make_observer
-tivne.train.make_observer = lambda *a, **k: Timed(make_observer(*a, **k))
+make_observer = tivne.slam.run.make_observer
+tivne.slam.run.make_observer = lambda *a, **k: Timed(make_observer(*a, **k))
 
 BASE = ["dataset=cube", "dataset.width=320", "dataset.height=240", "data.max_frames=60", "output.evaluate=false",
         "trainer.progress_bar=false"]

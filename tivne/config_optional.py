@@ -8,12 +8,9 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 from tivne.settings import ConfigError, Settings, setting
-
-if TYPE_CHECKING:  # the field section lives in tivne.config, which imports this module
-    from tivne.config import FieldConfig
 
 
 @dataclass(frozen=True)
@@ -46,8 +43,9 @@ class ObjectFieldConfig(Settings):
     window: float = setting(0.5, ge=0)
     mesh_resolution: float = setting(0.01, gt=0)
 
-    def object_config(self, field: FieldConfig) -> FieldConfig:
-        """Each object's :class:`tivne.field.TimeVaryingField` section: these settings, the rest from ``field``."""
+    def object_config(self, field: Settings) -> Settings:
+        """Each object's :class:`tivne.field.TimeVaryingField` section: ``field`` (a
+        :class:`tivne.config.FieldConfig`, which imports this module) with these settings."""
         own = ("voxel_size", "embed_dim", "hidden_dim", "num_hidden", "capacity", "max_capacity", "time", "time_frequencies",
                "offset_ramp", "surface_cell")
         return dataclasses.replace(field, name="object", **{k: getattr(self, k) for k in own})
