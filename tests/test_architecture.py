@@ -81,9 +81,10 @@ def imports_of(path: Path, known: set[str]) -> set[str]:
     return found
 
 
-def layer_of(module: str) -> int:
+def layer_of(module: str, layers: tuple[tuple[str, ...], ...] = LAYERS) -> int:
+    """Index of the entry of ``layers`` whose longest prefix names ``module`` (-1: none)."""
     best, rank = -1, -1
-    for i, entry in enumerate(LAYERS):
+    for i, entry in enumerate(layers):
         for prefix in entry:
             if (module == prefix or module.startswith(prefix + ".")) and len(prefix) > best:
                 best, rank = len(prefix), i
@@ -153,12 +154,7 @@ def test_module_and_function_size(module):
 
 
 def slam_layer_of(module: str) -> int:
-    best, rank = -1, -1
-    for i, entry in enumerate(SLAM_LAYERS):
-        for prefix in entry:
-            if (module == prefix or module.startswith(prefix + ".")) and len(prefix) > best:
-                best, rank = len(prefix), i
-    return rank
+    return layer_of(module, SLAM_LAYERS)
 
 
 def test_slam_modules_import_only_lower_slam_stages():

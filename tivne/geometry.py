@@ -181,3 +181,15 @@ def compose(*poses: torch.Tensor) -> torch.Tensor:
     for p in poses[1:]:
         out = out @ p
     return out
+
+
+def rotation_angle_deg(T: torch.Tensor) -> float:
+    """Rotation angle (degrees) of a (4, 4) rigid transform."""
+    cos = ((T[:3, :3].trace() - 1) / 2).clamp(-1, 1)
+    return math.degrees(float(torch.arccos(cos)))
+
+
+def pose_difference(A: torch.Tensor, B: torch.Tensor) -> tuple[float, float]:
+    """(metres, degrees) of A⁻¹ B for two (4, 4) rigid transforms (computed in float64)."""
+    D = invert_pose(A.double()) @ B.double()
+    return float(D[:3, 3].norm()), rotation_angle_deg(D)

@@ -18,9 +18,8 @@ from typing import Protocol
 
 import torch
 
-from tivne.geometry import orthonormalize_pose
+from tivne.geometry import orthonormalize_pose, pose_difference
 from tivne.render.rays import View
-from tivne.slam.backend.edges import pose_difference
 
 
 class KeyframePoses(Protocol):

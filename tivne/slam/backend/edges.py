@@ -14,29 +14,16 @@ enter an edge.
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 import torch
 
 from tivne.config import BackendConfig, OdometryConfig
-from tivne.geometry import invert_pose
+from tivne.geometry import invert_pose, pose_difference
 from tivne.render.rays import View
 from tivne.slam.keyframes import overlap_ratios
 from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
 from tivne.slam.tracking.pyramid import PyramidLevel
-
-
-def rotation_angle_deg(T: torch.Tensor) -> float:
-    """Rotation angle (degrees) of a (4, 4) rigid transform."""
-    cos = ((T[:3, :3].trace() - 1) / 2).clamp(-1, 1)
-    return math.degrees(float(torch.arccos(cos)))
-
-
-def pose_difference(A: torch.Tensor, B: torch.Tensor) -> tuple[float, float]:
-    """(metres, degrees) of A⁻¹ B for two (4, 4) rigid transforms."""
-    D = invert_pose(A.double()) @ B.double()
-    return float(D[:3, 3].norm()), rotation_angle_deg(D)
 
 
 def view_overlaps(new: View, others: list[View], K: torch.Tensor, pixels: int = 256) -> torch.Tensor:

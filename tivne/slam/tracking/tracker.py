@@ -23,7 +23,6 @@ model's last two) is read from the run's pose owners through a :class:`PoseLooku
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 import time
 from dataclasses import dataclass
@@ -34,7 +33,7 @@ import torch
 from data_modules.frame import Frame
 from tivne.config import FieldTrackingConfig, LossWeights, OdometryConfig, RenderConfig, TrackingConfig
 from tivne.field.networks import TimeVaryingField
-from tivne.geometry import invert_pose, orthonormalize_pose
+from tivne.geometry import invert_pose, orthonormalize_pose, pose_difference
 from tivne.render.rays import View
 from tivne.slam.tracking.field import predict_pose, track_frame
 from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
@@ -73,16 +72,9 @@ class TrackingCounts:
     field_iters: int = 0
 
 
-def rotation_deg(T: torch.Tensor) -> float:
-    """Rotation angle (degrees) of a (4, 4) rigid transform."""
-    cos = ((T[:3, :3].trace() - 1) / 2).clamp(-1, 1)
-    return math.degrees(float(torch.arccos(cos)))
-
-
 def pose_jump(pose: torch.Tensor, predicted: torch.Tensor) -> tuple[float, float]:
     """(metres, degrees) between a tracked and a predicted c2w pose."""
-    D = invert_pose(predicted.double()) @ pose.double()
-    return float(D[:3, 3].norm()), rotation_deg(D)
+    return pose_difference(predicted, pose)
 
 
 class Tracker:
