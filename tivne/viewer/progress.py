@@ -25,7 +25,7 @@ def progress_line(done: int, total: int | None, fps: float | None, ate_cm: float
 class PlainProgress(L.Callback):
     """Prints :func:`progress_line` every ``every`` frames and after the last one. fps: frames per
     second over the last ``every`` frames; ATE: the latest the run logged (``ate_cm``); lost: frames
-    whose tracking was lost or impossible (the module's ``counts``, where it has them)."""
+    whose tracking was lost or impossible (the tracker's counts, where the module has a loop)."""
 
     def __init__(self, every: int = 10, stream: TextIO | None = None) -> None:
         self.every = int(every)
@@ -45,7 +45,8 @@ class PlainProgress(L.Callback):
         fps = (done - start_idx) / (now - start_t) if now > start_t and done > start_idx else None
         self.last = (done, now)
         ate = trainer.callback_metrics.get("ate_cm")
-        counts = getattr(pl_module, "counts", None)
+        loop = getattr(pl_module, "loop", None)  # the SLAM loop the module adapts: its tracker counts
+        counts = getattr(getattr(loop, "tracker", None), "counts", None)
         lost = None if counts is None else int(getattr(counts, "lost", 0)) + int(getattr(counts, "without_tracking", 0))
         start = getattr(trainer.datamodule, "start", 0) if trainer.datamodule is not None else 0
         line = progress_line(start + done, None if total is None else start + total, fps, None if ate is None else float(ate), lost)

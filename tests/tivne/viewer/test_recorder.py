@@ -44,7 +44,7 @@ def test_a_recording_reads_back_with_poses_times_images_map_and_meshes(tmp_path)
     for k in range(6):
         if k % 3 == 0:
             rec.on_map(k, lambda: torch.arange(60, dtype=torch.float32).reshape(20, 3))
-        rec.on_frame(record(k, "lost" if k == 4 else track_status(k, False, {}), objects={"cube": box}))
+        rec.on_frame(record(k, "lost" if k == 4 else "first" if k == 0 else "tracked", objects={"cube": box}))
     rec.on_mesh(10.3, trimesh.creation.box())
     rec.on_finish([10.0 + k / 10 for k in range(6)], torch.stack([pose(k) for k in range(6)]))
     rec.close()
@@ -97,11 +97,18 @@ def test_a_recording_that_cannot_be_opened_is_one_warning_line(tmp_path, capsys)
     assert err.count("warning:") == 1 and "could not open the recording" in err
 
 
-def test_track_status():
-    assert track_status(0, False, {}) == "first"
-    assert track_status(3, False, {"track/odo_inlier_ratio": 0.9}) == "tracked"
-    assert track_status(3, True, {"track/lost": 1.0}) == "untracked"
-    assert track_status(3, True, {"track/lost": 1.0, "track/odo_inlier_ratio": 0.1}) == "lost"
+def test_track_status_reads_the_typed_tracking_result():
+    from types import SimpleNamespace
+
+    from tivne.slam.tracking import TrackStatus
+
+    def report(index, status):
+        return SimpleNamespace(index=index, track=SimpleNamespace(status=status))
+
+    assert track_status(report(0, TrackStatus.TRACKED)) == "first"
+    assert track_status(report(3, TrackStatus.TRACKED)) == "tracked" and track_status(report(3, TrackStatus.RECOVERED)) == "tracked"
+    assert track_status(report(3, TrackStatus.NO_DEPTH)) == "untracked"
+    assert track_status(report(3, TrackStatus.LOST)) == "lost"
 
 
 def test_decimate_keeps_at_most_the_limit():
