@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import torch
-from test_objects import LinearTrack, small_object_field
+from test_object_field import LinearTrack, small_object_field
 
 from tivne.config import MappingConfig
 from tivne.field.networks import TimeVaryingField
