@@ -32,7 +32,7 @@ sys.path.insert(0, str(REPO))
 
 from bench.peer import figures_line, run_open3d, spawn, trajectory_figures  # noqa: E402
 
-# The shared real tails (/work/shared/data/README.md): root folder name, camera and its intrinsics.
+# The shared real tails (../shared/data/README.md beside the checkout): root folder name, camera and its intrinsics.
 PRESETS = {
     "tum": ("tum_fr1_rpy_tail", "fr1", None),
     "7scenes": ("7scenes_redkitchen_tail", "custom", (585.0, 585.0, 320.0, 240.0)),  # the Kinect defaults 7-Scenes documents
