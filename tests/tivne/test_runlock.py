@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -84,8 +85,13 @@ def test_two_runs_into_one_folder_the_second_is_refused_the_first_is_whole(tmp_p
         assert first.poll() is None, first.communicate()[1][-2000:]
         assert time.monotonic() < deadline, "the first run did not start in time"
         time.sleep(0.1)
-    second = start(run, "output.image_every=7")
-    _, err2 = second.communicate(timeout=240)
+    # Stopped while it holds the folder, so the second meets the lock however fast this machine runs the first.
+    os.kill(first.pid, signal.SIGSTOP)
+    try:
+        second = start(run, "output.image_every=7")
+        _, err2 = second.communicate(timeout=240)
+    finally:
+        os.kill(first.pid, signal.SIGCONT)
     _, err1 = first.communicate(timeout=400)
     errors = [line for line in err2.splitlines() if line.startswith("error:")]
     assert second.returncode == 2 and "Traceback" not in err2, err2[-2000:]
