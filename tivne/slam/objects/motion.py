@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import torch
 
-from tivne.geometry import invert_pose, se3_exp, se3_log
+from tivne.geometry import invert_pose, orthonormalize_pose, se3_exp, se3_log
 
 
 def camera_in_object(T_wo: torch.Tensor, T_wc: torch.Tensor) -> torch.Tensor:
@@ -39,7 +39,9 @@ def object_pose(T_wc_cur: torch.Tensor, T_ref_cur: torch.Tensor, C_ref: torch.Te
         T_ref_cur: (4, 4) the odometry on the object's pixels (current -> reference camera).
         C_ref: (4, 4) camera-to-object pose of the reference observation.
     """
-    return T_wc_cur.double() @ invert_pose(T_ref_cur.double()) @ invert_pose(C_ref.double())
+    # Back onto SE(3): every object pose is built from the previous ones (through C_ref), and inverses
+    # taken as Rᵀ compound a rotation's non-orthogonality along that chain (float32 camera poses start it).
+    return orthonormalize_pose(T_wc_cur.double() @ invert_pose(T_ref_cur.double()) @ invert_pose(C_ref.double()))
 
 
 def odometry_init(T_wo_pred: torch.Tensor, T_wc_cur: torch.Tensor, C_ref: torch.Tensor) -> torch.Tensor:
@@ -64,7 +66,7 @@ def constant_velocity(taus: list[float], poses: torch.Tensor, tau: float, max_ga
     if step <= 0 or (max_gap is not None and (step > max_gap or ahead > max_gap)):
         return last.clone()
     xi = se3_log((last @ invert_pose(poses[-2].double()))[None])[0]
-    return se3_exp(xi * (ahead / step)) @ last
+    return orthonormalize_pose(se3_exp(xi * (ahead / step)) @ last)
 
 
 def interpolate_se3(A: torch.Tensor, B: torch.Tensor, s: float) -> torch.Tensor:

@@ -21,7 +21,7 @@ import torch
 from data_modules.frame import Frame
 from data_modules.tables import write_tum_trajectory
 from tivne.config import ObjectsConfig, OdometryConfig
-from tivne.geometry import backproject_depth, transform_points
+from tivne.geometry import backproject_depth, orthonormalize_pose, transform_points
 from tivne.slam.objects.instances import (
     dataset_instances,
     erode,
@@ -162,7 +162,7 @@ class ObjectTracker:
         """
         if instances is None:
             return []
-        T_wc = camera_pose.detach().double().cpu()
+        T_wc = orthonormalize_pose(camera_pose.detach().double().cpu())  # a float32 pose is orthonormal to 1e-7 only
         depth = frame.depth.cpu()
         if instances.dtype == torch.bool:
             segments = mask_segments(instances.cpu(), depth, self.cfg.min_pixels)
