@@ -9,7 +9,8 @@
 Each sequence runs ``tivne.train`` (default config plus the overrides) in its own process (its peak
 RSS is its own). Meshes are evaluated at three times (20 %, 50 % and 90 % of the sequence); per
 moving object the Chamfer distance over the part some camera saw within ±0.5 s of the mesh time
-(``tivne.evaluation``). Columns: ATE, per-object Chamfer at the three times, the largest ghost
+(``tivne.evaluation``). Columns: ATE, per-object Chamfer at the three times, the worst object
+track's error (``objects.track=true``: first-frame aligned ATE and rotation RMSE), the largest ghost
 fraction, PSNR of re-rendered frames, s/frame and peak RSS. Figures are printed, never asserted.
 """
 
@@ -66,8 +67,10 @@ def child(overrides: list[str]) -> None:
     """Run one sequence in this process; print its figures as one JSON line."""
     from hydra import compose, initialize_config_dir
 
+    from tivne.cli import register_defaults
     from tivne.slam.run import run
 
+    register_defaults()  # the config nodes conf/*.yaml compose onto (the mask providers' defaults among them)
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["trainer.progress_bar=false", "output.image_every=0", *overrides])
     metrics = run(cfg, Path(tempfile.mkdtemp(prefix="tivne-suite-")))
@@ -97,7 +100,8 @@ def summarise(metrics: dict, times: list[float]) -> dict:
             prefix = f"mesh_t{t:.2f}_"
             if key.startswith(prefix) and key.endswith("_chamfer_m") and not key.startswith(prefix + "static"):
                 chamfer.setdefault(key[len(prefix): -len("_chamfer_m")], [None] * len(times))[i] = value
-    keys = ("ate_rmse_m", "ghost_fraction_max", "psnr_db", "s_per_frame", "final_refine_share", "peak_rss_mb", "tracking_lost", "frames")
+    keys = ("ate_rmse_m", "ghost_fraction_max", "psnr_db", "s_per_frame", "final_refine_share", "peak_rss_mb", "tracking_lost", "frames",
+            "object_ate_max_m", "object_rot_max_deg")
     return {k: metrics.get(k) for k in keys} | {"chamfer_m": chamfer, "times": times}
 
 
@@ -106,18 +110,20 @@ def fmt(value, scale: float = 1.0, digits: int = 2) -> str:
 
 
 def table(results: dict[str, dict | None], reference: dict | None = None) -> str:
-    head = "| sequence | ATE cm | object Chamfer cm @20/50/90 % | ghost max | PSNR dB | s/frame | peak RSS MB |"
-    lines = [head, "|---|---|---|---|---|---|---|"]
+    head = ("| sequence | ATE cm | object Chamfer cm @20/50/90 % | worst object track cm / deg | ghost max | PSNR dB | s/frame "
+            "| peak RSS MB |")
+    lines = [head, "|---|---|---|---|---|---|---|---|"]
     for name, r in results.items():
         if r is None:
-            lines.append(f"| {name} | failed | | | | | |")
+            lines.append(f"| {name} | failed | | | | | | |")
             continue
         objs = "; ".join(f"{o} " + "/".join(fmt(v, 100, 1) for v in vals) for o, vals in sorted(r["chamfer_m"].items())) or "–"
-        cells = [fmt(r["ate_rmse_m"], 100), objs, fmt(r["ghost_fraction_max"], 1, 3), fmt(r["psnr_db"], 1, 1),
+        track = f"{fmt(r.get('object_ate_max_m'), 100)} / {fmt(r.get('object_rot_max_deg'))}" if r.get("object_ate_max_m") is not None else "–"
+        cells = [fmt(r["ate_rmse_m"], 100), objs, track, fmt(r["ghost_fraction_max"], 1, 3), fmt(r["psnr_db"], 1, 1),
                  fmt(r["s_per_frame"], 1, 3), fmt(r["peak_rss_mb"], 1, 0)]
         old = (reference or {}).get(name)
         if old:
-            for i, key, scale in ((0, "ate_rmse_m", 100), (2, "ghost_fraction_max", 1), (4, "s_per_frame", 1)):
+            for i, key, scale in ((0, "ate_rmse_m", 100), (3, "ghost_fraction_max", 1), (5, "s_per_frame", 1)):
                 if r.get(key) is not None and old.get(key) is not None:
                     cells[i] += f" ({(r[key] - old[key]) * scale:+.2f})"
         lines.append(f"| {name} | " + " | ".join(cells) + " |")

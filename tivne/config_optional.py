@@ -17,8 +17,8 @@ from tivne.settings import ConfigError, Settings, setting
 class ObjectFieldConfig(Settings):
     """Object fields of ``field=objects`` (:class:`tivne.field.objects.ObjectField`): one canonical
     field per moving object in its own frame, beside the static field of ``field.*``. tracks: where
-    the objects' SE(3) poses come from ("oracle": the dataset's ground truth, until object tracking
-    lands). voxel_size, embed_dim, hidden_dim, num_hidden, capacity: each object's grid and decoder;
+    the objects' SE(3) poses come from ("tracked": the object tracker of ``objects.*``, which must
+    be on; "oracle": the dataset's ground truth, the ablation's upper bound). voxel_size, embed_dim, hidden_dim, num_hidden, capacity: each object's grid and decoder;
     time: keep Θd for the residual non-rigid motion (Δe exactly 0 at the object's first time);
     time_frequencies, offset_ramp: as ``field.*``; surface_cell: record of the object's observed
     surface (object frame) for ``mesh.near_surface``; box_margin: metres the object box grows by;
@@ -27,7 +27,7 @@ class ObjectFieldConfig(Settings):
     allocated around each object's depth points (its own grid)."""
 
     section: ClassVar[str] = "object_field"
-    tracks: str = setting("oracle", choices=("oracle",))
+    tracks: str = setting("tracked", choices=("tracked", "oracle"))
     voxel_size: float = setting(0.04, gt=0)
     embed_dim: int = setting(16, ge=1)
     hidden_dim: int = setting(64, ge=1)

@@ -114,14 +114,22 @@ def test_final_evaluation_writes_4d_metrics(tmp_path):
     assert not (tmp_path / "refused").exists()
 
 
-def test_object_fields_run_on_the_oracle_and_come_back_from_the_checkpoint(tmp_path):
+@pytest.mark.parametrize("tracks", ["tracked", "oracle"])
+def test_object_fields_run_on_their_tracks_and_come_back_from_the_checkpoint(tmp_path, tracks):
     from tivne.field.objects import ObjectField
 
-    metrics = run(compose_cfg("field=objects", "output.evaluate=true", "mesh.times=[0.0,0.1]"), tmp_path)
+    metrics = run(compose_cfg("field=objects", f"object_field.tracks={tracks}", "output.evaluate=true", "mesh.times=[0.0,0.1]"), tmp_path)
     field, _ = load_checkpoint(tmp_path / "checkpoints" / "slam.pt")
     assert isinstance(field, ObjectField) and not field.time and list(field.slots) == [1]
+    assert (tmp_path / "objects" / "1.txt").is_file()  # field=objects turns the object tracker on (with the oracle too: its error is reported)
     assert field.slots[1].field.grid.num_voxels > 0 and field.grid.dynamic_keys.numel() == 0  # the cube lives in its own grid
     assert metrics["mesh_t0.10_cube_chamfer_m"] < 0.05 and metrics["ghost_fraction_max"] < 0.05
+
+
+def test_object_fields_without_the_object_tracker_are_refused_before_the_run(tmp_path):
+    with pytest.raises(ConfigError, match="set objects.track=true"):
+        run(compose_cfg("field=objects", "objects.track=false"), tmp_path / "run")
+    assert not (tmp_path / "run").exists()
 
 
 def test_a_run_without_usable_depth_fails_with_one_line_not_an_identity_trajectory(tmp_path):

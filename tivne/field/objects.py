@@ -17,7 +17,7 @@ and object parameters join the optimiser through :meth:`ObjectField.bind_optimiz
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -112,16 +112,23 @@ class ObjectField(TimeVaryingField):
         self.object_dilation = int(object_dilation)
         self.box_margin = float(box_margin)
         self.window = float(window)
-        self.tracks: dict[int, ObjectPoses] = {}
+        self._tracks: Mapping[int, ObjectPoses] | Callable[[], Mapping[int, ObjectPoses]] = {}
         self.slots: dict[int, ObjectSlot] = {}  # a plain dict: not submodules (see the module docstring)
         self.compose = True  # False: the static field alone (static mesh, ablations)
         self._optimizer: torch.optim.Optimizer | None = None
         self._lrs = (0.0, 0.0)
 
     # ---- tracks and optimiser ---------------------------------------------------------------
-    def set_tracks(self, tracks: Mapping[int, ObjectPoses]) -> None:
-        """The objects' tracks (by object id); a track may gain observations while the run goes."""
-        self.tracks = dict(tracks)
+    def set_tracks(self, tracks: Mapping[int, ObjectPoses] | Callable[[], Mapping[int, ObjectPoses]]) -> None:
+        """The objects' tracks (by object id): a mapping (e.g. the GT oracle), or a function that
+        returns the live ones (the object tracker's, which gains tracks and observations while the
+        run goes and is replaced on a restore)."""
+        self._tracks = tracks if callable(tracks) else dict(tracks)
+
+    @property
+    def tracks(self) -> Mapping[int, ObjectPoses]:
+        """{object id: track} as of now."""
+        return self._tracks() if callable(self._tracks) else self._tracks
 
     def bind_optimizer(self, optimizer: torch.optim.Optimizer, lr_embeddings: float, lr_decoder: float) -> None:
         """Object fields created from now on (and those already there) join ``optimizer`` as two
@@ -154,8 +161,9 @@ class ObjectField(TimeVaryingField):
         out = super().forward(points, tau)
         if not self.compose:
             return out
+        tracks = self.tracks
         for object_id, slot in self.slots.items():
-            track = self.tracks.get(object_id)
+            track = tracks.get(object_id)
             if track is None or track.box is None or points.shape[0] == 0:
                 continue
             local, inverse = world_to_object(points, tau, track)

@@ -1,14 +1,15 @@
 """Ground-truth object tracks (an ORACLE): the dataset's exact object poses, in the SLAM frame, in
 the shape of the tracks the object fields read (:class:`tivne.field.objects.ObjectPoses`).
 
-Until object tracking lands, ``field=objects`` runs on these; every figure measured with them says
-so (``objects.tracks=oracle``). The SLAM frame is the first processed camera's, so a world pose
+``field=objects`` runs on the object tracker's poses (``object_field.tracks=tracked``); these are
+the upper bound of the ablation (``object_field.tracks=oracle``), and every figure measured with
+them says so. The SLAM frame is the first processed camera's, so a world pose
 maps into it by the inverse of that camera's GT pose (the evaluation maps meshes back the same way).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -57,7 +58,7 @@ def ground_truth_tracks(view: Any, time_scale: float) -> dict[int, GroundTruthTr
     if not (hasattr(base, "object_poses") and hasattr(base, "dynamic_box") and hasattr(base, "camera_pose")):
         raise ConfigError(
             f"objects.tracks=oracle: dataset {getattr(view, 'name', '?')!r} has no ground-truth object poses "
-            "(the synthetic family has them); object tracking is not available yet"
+            "(the synthetic family has them); object_field.tracks=tracked estimates them"
         )
     first = int(getattr(view, "source_indices", [0])[0])
     slam_from_world = torch.linalg.inv(torch.as_tensor(base.camera_pose(first), dtype=torch.float64))
@@ -73,8 +74,20 @@ def ground_truth_tracks(view: Any, time_scale: float) -> dict[int, GroundTruthTr
     return tracks
 
 
-def attach_oracle(field: TimeVaryingField, view: Any, cfg: ObjectFieldConfig) -> None:
-    """Give an :class:`ObjectField` the tracks ``cfg.tracks`` names ("oracle": the GT of ``view``);
-    a no-op for other fields."""
-    if isinstance(field, ObjectField) and cfg.tracks == "oracle":
+def attach_tracks(field: TimeVaryingField, view: Any, cfg: ObjectFieldConfig,
+                  tracked: Callable[[], Mapping[int, Any]] | None = None) -> None:
+    """Give an :class:`ObjectField` the tracks ``cfg.tracks`` names: "oracle", the GT of ``view``;
+    "tracked", what ``tracked()`` returns (the run's object tracker). A no-op for other fields.
+
+    Raises:
+        ConfigError: "tracked" without an object tracker (``objects.track=false``), or "oracle" on
+            a dataset without GT object poses.
+    """
+    if not isinstance(field, ObjectField):
+        return
+    if cfg.tracks == "oracle":
         field.set_tracks(ground_truth_tracks(view, field.time_scale))
+    elif tracked is None:
+        raise ConfigError("object_field.tracks=tracked: the object poses come from the object tracker; set objects.track=true")
+    else:
+        field.set_tracks(tracked)

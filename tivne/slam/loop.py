@@ -103,11 +103,9 @@ class SlamLoop:
         result = self.tracker.track(k, frame, tau, mask, self.field, self.poses, self.K, self.last_mapped_tau, self.generator)
         view = View(k, tau, frame.rgb, frame.depth, mask, result.pose)
         keyframe = new_reference = False
-        mapping, objects, correction = None, [], None
+        mapping, objects, correction = None, (), None
         if not result.lost:  # a frame whose pose is not known is never mapped
-            view, keyframe, new_reference, mapping, correction = self._integrate(k, view, frame, result)
-            if self.objects is not None:  # each moving object's SE(3), the camera pose known
-                objects = self.objects.observe(frame, view.pose, tau, view.dynamic)
+            view, keyframe, new_reference, mapping, correction, objects = self._integrate(k, view, frame, result)
         latest = self.keyframes.frame_ids()[-1]
         self.trajectory.append(frame.timestamp, view.pose, latest, self.keyframes.pose(latest), frame.gt_pose)
         if not result.lost:
@@ -116,15 +114,19 @@ class SlamLoop:
         self.timers.per_frame.append(elapsed)
         self.between_frames = True
         return FrameReport(k, float(frame.timestamp), tau, result, view, keyframe, new_reference, mapping, elapsed,
-                           self.field.grid.num_voxels, tuple(objects), correction)
+                           self.field.grid.num_voxels, objects, correction)
 
-    def _integrate(self, k: int, view: View, frame: Frame, result) -> tuple[View, bool, bool, Any, Correction | None]:
-        """Everything after a successful track: the mask, keyframes, mapping, voxels, the odometry reference."""
+    def _integrate(self, k: int, view: View, frame: Frame, result) -> tuple[View, bool, bool, Any, Correction | None, tuple]:
+        """Everything after a successful track: the mask, the objects, keyframes, mapping, voxels,
+        the odometry reference."""
         K = self.K
         if self.masks.needs_tracked_pose:
             with frozen(self.field), torch.no_grad():
                 context = MaskContext(self.field, view.pose, K, view.tau, self.mapper.render, k, self.last_mapped_tau)
                 view = dataclasses.replace(view, dynamic=self.masks(frame, context))
+        # Each moving object's SE(3), the camera pose known: before voxels and mapping, which place
+        # the object fields (field=objects) by these poses.
+        objects = () if self.objects is None else tuple(self.objects.observe(frame, view.pose, view.tau, view.dynamic))
         self.keyframes.set_masks(self.masks.revise(self.keyframes.views(), view, K))  # what this frame shows about earlier keyframes
         if k == 0:  # the first frame is mapped before anything else: its voxels first
             self.allocator.allocate(self.field, view, K)
@@ -146,7 +148,7 @@ class SlamLoop:
         if k > 0:
             self.allocator.allocate(self.field, view, K)
         new_reference = self.tracker.update_reference(view, K, result, keyframe)
-        return view, keyframe, new_reference, mapping, correction
+        return view, keyframe, new_reference, mapping, correction, objects
 
     def _correct_poses(self) -> Correction:
         """The pose graph's step for a new keyframe: its edges and closures, every keyframe pose

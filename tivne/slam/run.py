@@ -26,6 +26,7 @@ from data_modules.sequence import SequenceDataModule
 from tivne.config import (
     AllocationConfig,
     BackendConfig,
+    ConfigError,
     FieldConfig,
     FieldTrackingConfig,
     KeyframeConfig,
@@ -47,7 +48,7 @@ from tivne.config import (
 )
 from tivne.evaluation import evaluate_run
 from tivne.field.objects import attach_optimizer, build_field
-from tivne.field.oracle import attach_oracle
+from tivne.field.oracle import attach_tracks
 from tivne.inputs import check_run_inputs
 from tivne.limits import check_run_size
 from tivne.masks.base import MaskProvider
@@ -103,7 +104,11 @@ class TrainSettings:
     def from_config(cls, cfg: DictConfig) -> "TrainSettings":
         """Check every section (raises :class:`tivne.config.ConfigError` naming the bad key)."""
         sections = typing.get_type_hints(cls)
-        return cls(**{name: kind.from_mapping(plain(cfg[name])) for name, kind in sections.items()})
+        settings = cls(**{name: kind.from_mapping(plain(cfg[name])) for name, kind in sections.items()})
+        if settings.field.name == "objects" and settings.object_field.tracks == "tracked" and not settings.objects.track:
+            raise ConfigError("object_field.tracks=tracked: the object fields are placed by the object tracker; set objects.track=true "
+                              "(or object_field.tracks=oracle for the dataset's GT object poses)")
+        return settings
 
 
 def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvider | None = None, seed: int = 0) -> SlamLoop:
@@ -112,7 +117,7 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
     field = build_field(s.field, s.object_field)
     mapper = Mapper(field, s.mapping, PixelSampler(s.sampler), s.render, s.loss)
     attach_optimizer(field, mapper.optimizer, s.mapping)  # field=objects: object fields join the map optimiser
-    return SlamLoop(
+    loop = SlamLoop(
         field=field,
         intrinsics=intrinsics,
         tracker=Tracker(s.tracking, s.field_tracking, s.odometry, s.render, s.loss),
@@ -125,6 +130,9 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
         objects=ObjectTracker(s.objects, intrinsics.K(), s.odometry) if s.objects.track else None,
         backend=make_backend(s.backend, s.odometry),
     )
+    if s.object_field.tracks == "tracked":  # field=objects placed by the object tracker's live poses
+        attach_tracks(field, None, s.object_field, None if loop.objects is None else (lambda: loop.objects.tracks))
+    return loop
 
 
 def loop_from_config(cfg: DictConfig, intrinsics: Intrinsics, masks: MaskProvider | None = None) -> SlamLoop:
@@ -200,7 +208,8 @@ def run_locked(cfg: DictConfig, run_dir: str | Path, masks: MaskProvider | None 
     resume = prepare_run_dir(cfg, options, run_dir, datamodule.view.timestamps)
     viewer = make_observer(settings.viewer, run_dir, datamodule.intrinsics, settings.output.image_every)  # viewer=rerun
     system = build_system(cfg, datamodule.intrinsics, run_dir, settings, masks, observer=viewer)
-    attach_oracle(system.field, datamodule.view, settings.object_field)  # field=objects: GT object poses until tracked ones
+    if settings.object_field.tracks == "oracle":  # field=objects on the GT object poses (the ablation's upper bound)
+        attach_tracks(system.field, datamodule.view, settings.object_field)
     if resume is not None:
         datamodule.start = system.resume_from(resume)
     logger = TensorBoardLogger(save_dir=str(run_dir), name="", version=RunDir.TENSORBOARD, default_hp_metric=False)
