@@ -136,3 +136,29 @@ def test_a_crash_in_the_final_pass_resumes_from_the_checkpoint_before_it(tmp_pat
     assert len(list((tmp_path / "crashed" / "meshes").glob("*.ply"))) == 2
     with pytest.raises(RunDirError, match="the run is complete"):
         run(smoke_cfg(*overrides, "resume=true"), tmp_path / "crashed")
+
+
+def test_a_restored_object_field_run_continues_on_its_tracks(tmp_path, tiny_cube, one_thread):
+    """field=objects: the restored loop's object fields are placed by the restored tracker's tracks
+    (the field reads the live ones, which a restore replaces); the object's reference keyframe is
+    not saved, so the rest matches the uninterrupted run closely, not bit for bit."""
+    cfg = smoke_cfg("field=objects", "objects.min_pixels=64", "keyframe.every=2", "output.save_every=0", "output.checkpoint_every=3")
+    frames = [tiny_cube[k] for k in range(6)]
+    whole = build_system(cfg, tiny_cube.intrinsics, tmp_path / "whole")
+    feed(whole, frames[:3], 0)
+    shutil.copy(tmp_path / "whole" / "checkpoints" / "slam.pt", tmp_path / "at3.pt")
+    feed(whole, frames[3:], 3)
+    resumed = build_system(cfg, tiny_cube.intrinsics, tmp_path / "resumed")
+    assert resumed.resume_from(read_checkpoint(tmp_path / "at3.pt")) == 3
+    resumed.on_train_start()
+    r, w = resumed.loop, whole.loop
+    assert r.field.tracks is r.objects.tracks and len(r.objects.tracks[1]) == 3 and list(r.field.slots) == [1]
+    feed(resumed, frames[3:], 3)
+    assert r.field.tracks is r.objects.tracks and list(r.field.slots) == [1]
+    ours, theirs = r.objects.tracks[1], w.objects.tracks[1]
+    # The first frame after the restore becomes the object's reference (at its predicted pose, not an observation).
+    assert ours.observed_taus() == [t for t in theirs.observed_taus() if t != r.trajectory.timestamps()[3]] and len(ours) == 5
+    apart = [float((ours.pose_at(t)[:3, 3] - theirs.pose_at(t)[:3, 3]).norm()) for t in theirs.observed_taus()]
+    assert max(apart) < 2e-3, apart
+    n, m = r.field.slots[1].field.grid.num_voxels, w.field.slots[1].field.grid.num_voxels
+    assert abs(n - m) <= 0.05 * m, (n, m)  # its voxels: where the (slightly different) poses put its depth
