@@ -64,7 +64,11 @@ class ObjectsConfig(Settings):
     the odometry's overlap with the current one falls below this. min_iou: a segment continues a
     track when its overlap with the track's predicted mask reaches this. reid_distance: a segment
     re-identifies a lost track whose predicted centre is this close (m) and whose size agrees
-    within reid_size_ratio. max_gap_s: a track unseen longer is lost (then only re-identified)."""
+    within reid_size_ratio. max_gap_s: a track unseen longer is lost (then only re-identified).
+    border_wait: a new object the image border cuts off waits up to this many frames for a whole
+    view before its track starts from it (0 = start at once); the waiting views are then aligned to
+    it, back to the first that shows less than half as much of the object (a sliver's rotation is
+    barely determined, and every later view would be aligned to it)."""
 
     section: ClassVar[str] = "objects"
     track: bool = False
@@ -77,6 +81,7 @@ class ObjectsConfig(Settings):
     reid_distance: float = setting(0.25, gt=0)
     reid_size_ratio: float = setting(1.6, ge=1)
     max_gap_s: float = setting(0.2, gt=0)
+    border_wait: int = setting(15, ge=0)
 
 
 @dataclass(frozen=True)

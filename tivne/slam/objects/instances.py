@@ -82,6 +82,13 @@ def projected_mask(points_world: torch.Tensor, T_wc: torch.Tensor, K: torch.Tens
     return out
 
 
+def touches_border(mask: torch.Tensor, margin: int = 2) -> bool:
+    """Whether an (H, W) bool mask reaches within ``margin`` pixels of the image border (the object
+    is cut off by the view: only a sliver of it may be seen)."""
+    m = int(margin)
+    return bool(mask[:m].any() or mask[-m:].any() or mask[:, :m].any() or mask[:, -m:].any())
+
+
 def iou(a: torch.Tensor, b: torch.Tensor) -> float:
     """Intersection over union of two (H, W) bool masks (0 when both are empty)."""
     union = int((a | b).sum())

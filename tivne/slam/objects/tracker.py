@@ -31,6 +31,7 @@ from tivne.slam.objects.instances import (
     mask_segments,
     projected_mask,
     smooth_depth,
+    touches_border,
     world_points,
 )
 from tivne.slam.objects.motion import camera_in_object, constant_velocity, object_pose, odometry_init
@@ -79,6 +80,18 @@ class _Reference:
     pyramid: list[PyramidLevel]
     C: torch.Tensor
     tau: float
+
+
+@dataclass
+class _Pending:
+    """A new object's observation while the image border cuts it off (before its track starts)."""
+
+    pyramid: list[PyramidLevel]
+    mask: torch.Tensor
+    T_wc: torch.Tensor
+    tau: float
+    time: float
+    pixels: int
 
 
 @dataclass
@@ -132,6 +145,7 @@ class ObjectTracker:
         self.tracks: dict[int, ObjectTrack] = {}
         self.stamps: dict[int, dict[float, float]] = {}  # per track: τ -> timestamp [s]
         self.live: dict[int, _Live] = {}
+        self.pending: dict[int, list[_Pending]] = {}  # new objects cut off by the border, oldest first
         self.next_id = 1
         self.seconds, self.frames = 0.0, 0
 
@@ -169,16 +183,27 @@ class ObjectTracker:
             found = self._associate(segments, frame, T_wc, tau)
         else:
             found = {(k, False): m for k, m in dataset_instances(instances.cpu(), depth, self.cfg.min_pixels).items()}
-        return [self._observe(oid, mask, frame, T_wc, tau, reid) for (oid, reid), mask in sorted(found.items())]
+        self._drop_stale_pending(float(frame.timestamp))
+        seen = [self._observe(oid, mask, frame, T_wc, tau, reid) for (oid, reid), mask in sorted(found.items())]
+        return [o for o in seen if o is not None]
 
-    def _observe(self, oid: int, mask: torch.Tensor, frame: Frame, T_wc: torch.Tensor, tau: float, reid: bool) -> ObjectObservation:
+    def _observe(self, oid: int, mask: torch.Tensor, frame: Frame, T_wc: torch.Tensor, tau: float, reid: bool) -> ObjectObservation | None:
+        """One object's observation; None while a new object waits for a view the border does not cut."""
         inner = erode(mask, 1)
         inner = inner if int(inner.sum()) >= self.cfg.min_pixels // 2 else mask
         rgb, depth = frame.rgb.cpu(), frame.depth.cpu()
         pyramid = frame_pyramid(rgb, smooth_depth(depth, inner, self.cfg.depth_smoothing), self.K, self.odo, ~inner)
         pixels, t = int(mask.sum()), float(frame.timestamp)
         if oid not in self.tracks:
-            return self._start(oid, inner, pyramid, depth, T_wc, tau, t, pixels)
+            # A sliver at the border is a poor first reference (its rotation is barely determined and
+            # each later view is aligned to it): wait for a whole view, then align the waiting ones to it.
+            waiting = self.pending.setdefault(oid, [])
+            if touches_border(mask) and len(waiting) < self.cfg.border_wait:
+                waiting.append(_Pending(pyramid, mask, T_wc, tau, t, pixels))
+                return None
+            first = self._start(oid, inner, pyramid, depth, T_wc, tau, t, pixels)
+            self._backfill(oid, self.pending.pop(oid, []), pixels)
+            return first
         track, live = self.tracks[oid], self.live.get(oid)
         T_pred = self._predict(oid, inner, depth, T_wc, tau, t)
         if live is None or live.reference is None:  # resumed: no reference pyramid kept
@@ -217,6 +242,26 @@ class ObjectTracker:
         self.next_id = max(self.next_id, oid + 1)
         self._remember(oid, mask, depth, T_wc, T_wo, t, pyramid, tau)
         return ObjectObservation(oid, tau, t, T_wo, pixels, True, new_track=True, new_reference=True)
+
+    def _backfill(self, oid: int, waiting: list[_Pending], pixels: int) -> None:
+        """The poses of a new track's waiting observations, newest first, each aligned to the track's
+        first reference (``pixels`` pixels) starting from the pose of the frame after it. Back to the
+        first one that fails or shows less than half as many pixels: a sliver leaves the rotation open."""
+        track, ref = self.tracks[oid], self.live[oid].reference
+        for obs in reversed(waiting):
+            if obs.pixels < pixels // 2:
+                break
+            T_pred = track.poses()[0]  # the earliest pose so far: one frame later than this observation
+            res = track_pyramids(ref.pyramid, obs.pyramid, odometry_init(T_pred, obs.T_wc, ref.C), self.odo)
+            if not self._good(res):
+                break
+            track.add(obs.tau, object_pose(obs.T_wc, res.T_ref_cur, ref.C))
+            self.stamps[oid][obs.tau] = obs.time
+
+    def _drop_stale_pending(self, t: float) -> None:
+        """Forget waiting observations of objects not seen for longer than ``max_gap_s``."""
+        for oid in [k for k, w in self.pending.items() if w and t - w[-1].time > self.cfg.max_gap_s]:
+            del self.pending[oid]
 
     def _new_reference(self, oid, mask, pyramid, depth, T_wc, T_wo, tau, t) -> None:
         self._remember(oid, mask, depth, T_wc, T_wo, t, pyramid, tau)
@@ -268,11 +313,21 @@ class ObjectTracker:
         for j, seg in enumerate(segments):
             if j in taken:
                 continue
-            k = self._reidentify(seg, depth, T_wc, tau, set(followed) | {key for key, _ in out})
+            busy = set(followed) | {key for key, _ in out}
+            k = self._reidentify(seg, depth, T_wc, tau, busy)
+            if k is None:
+                k = self._waiting_for(seg, busy)
             if k is None:
                 k, self.next_id = self.next_id, self.next_id + 1
             out[(k, k in self.tracks)] = seg
         return out
+
+    def _waiting_for(self, seg: torch.Tensor, busy: set[int]) -> int | None:
+        """The waiting new object (cut off by the border) whose last mask overlaps the segment best,
+        by at least ``min_iou``; None if none (objects move little in one frame)."""
+        scores = [(iou(w[-1].mask, seg), k) for k, w in self.pending.items() if w and k not in busy]
+        best = max(scores, default=(0.0, None))
+        return best[1] if best[0] >= self.cfg.min_iou else None
 
     def _reidentify(self, seg: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, busy: set[int]) -> int | None:
         """The lost track that puts its points' centre nearest the segment's centre, held at its last

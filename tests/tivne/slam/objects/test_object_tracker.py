@@ -49,7 +49,8 @@ def test_object_on_a_synthetic_pair_converges_with_a_moving_camera(cube):
 def test_identities_survive_leaving_and_reentering(crossing):
     """Geometric segments (ids only per frame): object 1 leaves the view for 10 frames (0.33 s,
     longer than objects.max_gap_s) while object 2 stays; it is re-identified, not a new track."""
-    tracker = ObjectTracker(ObjectsConfig(track=True, source="geometric", min_pixels=60), crossing.intrinsics.K())
+    # border_wait=0: at 160x120 both objects touch the border in the first frames; tracked from frame 0 here.
+    tracker = ObjectTracker(ObjectsConfig(track=True, source="geometric", min_pixels=60, border_wait=0), crossing.intrinsics.K())
     seen_back = []
     for i in range(len(crossing)):
         f = crossing.render(i, noise=False)
@@ -126,3 +127,27 @@ def test_float32_camera_poses_do_not_derail_a_long_chain_of_object_references(cr
         assert len(track) >= 55
         err = object_trajectory_error(track.poses(), _gt(ds, name, track.observed_taus()))
         assert err.ate_max_m < 0.01, (name, err)
+
+
+def test_an_object_entering_at_the_border_waits_for_a_whole_view_then_gets_its_earlier_poses(crossing):
+    """Object 2 ("near") touches the image border in the first frames: its track starts at the first
+    view the border does not cut, and the waiting views are aligned to that one afterwards."""
+    from tivne.slam.objects.instances import touches_border
+
+    clipped = [i for i in range(len(crossing)) if touches_border(crossing.render(i, noise=False).instances == 2)]
+    first_whole = next(i for i in range(len(crossing)) if i not in clipped)
+    assert clipped[:3] == [0, 1, 2] and first_whole > 3  # the premise
+    tracker = ObjectTracker(ObjectsConfig(track=True, min_pixels=60, border_wait=len(crossing)), crossing.intrinsics.K(),
+                            names={1: "far", 2: "near"})
+    started = None
+    for i in range(first_whole + 3):
+        f = crossing.render(i, noise=False)
+        obs = {o.object_id: o for o in tracker.step(f, crossing.camera_pose(i), float(f.timestamp), f.instances)}
+        if 2 in obs and started is None:
+            started = i
+            assert obs[2].new_track and len(tracker.tracks[2]) > 1  # earlier poses filled in at once
+        assert (2 in obs) == (i >= first_whole) and (2 in tracker.pending) == (i < first_whole)
+    track = tracker.tracks[2]
+    assert started == first_whole and track.observed_taus()[0] < float(crossing.timestamps[first_whole])
+    err = object_trajectory_error(track.poses(), _gt(crossing, "near", track.observed_taus()))
+    assert err.ate_max_m < 0.01 and err.rot_max_deg < 2.0, err
