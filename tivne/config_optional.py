@@ -55,8 +55,10 @@ class ObjectFieldConfig(Settings):
 class ObjectsConfig(Settings):
     """Rigid moving objects (:class:`tivne.slam.objects.ObjectTracker`): track: one SE(3) track per
     object, written to objects/<id>.txt. source: "dataset" (the frames' instance ids, Co-Fusion
-    mask_id, the synthetic family) or "geometric" (connected, depth-continuous segments of the
-    frame's dynamic mask, identities by overlap under the predicted motion). min_pixels: smaller
+    mask_id, the synthetic family), "geometric" (connected, depth-continuous segments of the
+    frame's dynamic mask, identities by overlap under the predicted motion) or "auto" (the objects
+    follow the run's masks: "dataset" with ``masks=dataset``, else "geometric" on whatever mask the
+    provider makes: geometric, folder, Mask R-CNN). min_pixels: smaller
     instances are ignored. levels: odometry pyramid levels on an object's pixels (objects are
     small: the coarsest level must keep pixels). depth_smoothing: radius (pixels) of the mean filter
     over the object's own depths before its odometry (0 = off; axial noise biases the object's
@@ -72,7 +74,7 @@ class ObjectsConfig(Settings):
 
     section: ClassVar[str] = "objects"
     track: bool = False
-    source: str = setting("dataset", choices=("dataset", "geometric"))
+    source: str = setting("auto", choices=("auto", "dataset", "geometric"))
     min_pixels: int = setting(200, ge=16)
     levels: int = setting(2, ge=1, le=4)
     depth_smoothing: int = setting(1, ge=0, le=4)

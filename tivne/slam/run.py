@@ -127,7 +127,7 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
         allocator=VoxelAllocator(s.allocation),
         masks=masks,
         seed=seed,
-        objects=ObjectTracker(s.objects, intrinsics.K(), s.odometry) if s.objects.track else None,
+        objects=ObjectTracker(s.objects, intrinsics.K(), s.odometry, masks=getattr(masks, "name", "none")) if s.objects.track else None,
         backend=make_backend(s.backend, s.odometry),
     )
     if s.object_field.tracks == "tracked":  # field=objects placed by the object tracker's live poses

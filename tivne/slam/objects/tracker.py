@@ -134,11 +134,14 @@ class ObjectTracker:
         config: the ``objects`` section. K: (3, 3) camera matrix. odometry: the camera odometry's
             settings (the object odometry uses them with ``config.levels`` levels).
         names: dataset names of dataset instance ids (e.g. the synthetic family's object names).
+        masks: the name of the run's mask provider (what ``objects.source=auto`` follows).
     """
 
     def __init__(self, config: ObjectsConfig, K: torch.Tensor, odometry: OdometryConfig = OdometryConfig(),
-                 names: dict[int, str] | None = None) -> None:
+                 names: dict[int, str] | None = None, masks: str = "dataset") -> None:
         self.cfg = config
+        # objects.source=auto follows the run's mask provider (its name: "dataset", "geometric", ...).
+        self.source = config.source if config.source != "auto" else ("dataset" if masks == "dataset" else "geometric")
         self.K = K.float()
         self.odo = replace(odometry, levels=config.levels)
         self.names = dict(names or {})
@@ -153,7 +156,7 @@ class ObjectTracker:
     def instances_of(self, frame: Frame, dynamic: torch.Tensor | None) -> torch.Tensor | None:
         """What :meth:`step` reads for ``objects.source``: the frame's instance ids (dataset) or its
         dynamic mask ``dynamic`` (H, W) bool (geometric)."""
-        return frame.instances if self.cfg.source == "dataset" else dynamic
+        return frame.instances if self.source == "dataset" else dynamic
 
     def observe(self, frame: Frame, camera_pose: torch.Tensor, tau: float, dynamic: torch.Tensor | None) -> list[ObjectObservation]:
         """:meth:`step` on :meth:`instances_of`, timed (``seconds``, ``frames``: the objects' cost)."""

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 from hydra import compose, initialize_config_dir
 
+from data_modules.frame import Intrinsics
 from data_modules.tables import read_tum_trajectory
 from tivne.slam.results import RunWriter, run_metrics
 from tivne.slam.run import TrainSettings, loop_from_config
@@ -34,3 +35,14 @@ def test_the_loop_tracks_the_object_and_writes_it(tiny_cube, tmp_path):
     metrics = run_metrics(loop)
     assert metrics["objects_written"] == 1 and metrics["objects_s_per_frame"] > 0
     assert sorted(loop.state_dict()["objects"]["tracks"]) == [1]
+
+
+def test_objects_follow_the_masks_of_the_run_unless_told():
+    def source(*overrides: str) -> str:
+        with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+            cfg = compose("config", overrides=["experiment=smoke", "dataset.cache_dir=null", "objects.track=true", *overrides])
+        return loop_from_config(cfg, Intrinsics(60.0, 60.0, 39.5, 29.5, 80, 60)).objects.source
+
+    assert source("masks=dataset") == "dataset"  # the frames' instance ids
+    assert source("masks=geometric") == "geometric"  # segments of the geometric masks: no GT in the run
+    assert source("masks=geometric", "objects.source=dataset") == "dataset"
