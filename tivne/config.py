@@ -213,7 +213,9 @@ class OdometryConfig(Settings):
 
 @dataclass(frozen=True)
 class MappingConfig(Settings):
-    """iters: steps per mapping round; first_iters: steps on the first frame alone. rays per step,
+    """iters: steps per mapping round; first_iters: steps the first frame's map gets in all,
+    first_now of them on the first frame alone (so it returns in about a second), the rest added to
+    the next rounds, at most iters more each (odometry tracking does not read the map). rays per step,
     current_share of them from the current frame, the rest split over the picked keyframes. every:
     map every n-th frame. optimize_poses: refine the window's poses (never the first frame's; on, 20
     Adam steps per round added noise here: 2.6 vs 1.0 cm peak error over 40 frames). The final pass:
@@ -223,9 +225,11 @@ class MappingConfig(Settings):
 
     section: ClassVar[str] = "mapping"
     iters: int = setting(20, ge=1)
-    # 40 makes the first frame ~6x cheaper (CPU time) and kept the 150-frame cube's figures, but on a
-    # 40-frame cube run the first-time mesh came out worse (accuracy 1.15 vs 0.59 cm): kept at 200.
+    # 40 in all made the first frame ~6x cheaper and kept the 150-frame cube's figures, but on a
+    # 40-frame cube run the first-time mesh came out worse (accuracy 1.15 vs 0.59 cm): 200 in all,
+    # first_now of them at the first frame and the rest in the rounds after it.
     first_iters: int = setting(200, ge=0)
+    first_now: int = setting(30, ge=0)
     rays: int = setting(512, ge=1)
     current_share: float = setting(0.5, gt=0, le=1)
     lr_embeddings: float = setting(1e-2, gt=0)

@@ -52,15 +52,17 @@ class Mapper:
         )
         field.grid.grow_callbacks.append(self._pad_embedding_state)
         self.steps = 0  # optimiser steps run so far (the final pass's budget is a share of them)
+        self.owed = 0  # steps of first_iters not yet run (mapping.first_now ran at the first frame)
 
     def state_dict(self) -> dict:
         """The optimiser (Adam's moments, padded to E's rows, and step counts) and the steps run."""
-        return {"optimizer": self.optimizer.state_dict(), "steps": self.steps}
+        return {"optimizer": self.optimizer.state_dict(), "steps": self.steps, "owed": self.owed}
 
     def load_state_dict(self, state: dict) -> None:
         """After the field's own state (E must already have the saved number of rows)."""
         self.optimizer.load_state_dict(state["optimizer"])
         self.steps = int(state["steps"])
+        self.owed = int(state.get("owed", 0))  # checkpoints before mapping.first_now owe nothing
 
     def _pad_embedding_state(self, old_rows: int, new_rows: int) -> None:
         """Keep Adam's moments aligned with E after the grid grows (new rows start from zero moments)."""
@@ -75,14 +77,17 @@ class Mapper:
         self, view: View, store: KeyframeStore, policy: KeyframePolicy, K: torch.Tensor, generator: torch.Generator | None, first: bool
     ) -> MapRound:
         """A mapping round on ``view`` (the current frame, tracked) and the keyframes ``policy`` picks;
-        the first frame alone gets ``first_iters`` steps with its pose fixed (it is the world frame)."""
+        the first frame alone gets ``first_now`` of its ``first_iters`` steps with its pose fixed (it is
+        the world frame); the rounds after it run the rest, at most ``iters`` more each."""
         if first:
-            views, fixed, iters = [view], [True], self.cfg.first_iters
+            views, fixed, iters = [view], [True], min(self.cfg.first_now, self.cfg.first_iters)
+            self.owed = self.cfg.first_iters - iters
         else:
             picked = policy.select(store, view, K, generator)
             views = [view] + [store.view(i) for i in picked]
             fixed = [False] + [v.frame_id == 0 for v in views[1:]]
-            iters = self.cfg.iters
+            extra = min(self.owed, self.cfg.iters)
+            iters, self.owed = self.cfg.iters + extra, self.owed - extra
         start = time.perf_counter()
         poses, terms = self.run(views, fixed, iters, K, generator)
         self.seconds += time.perf_counter() - start

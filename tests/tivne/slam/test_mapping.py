@@ -137,3 +137,24 @@ def test_final_pass_revisits_every_view_in_windows_and_never_moves_poses(frames)
     mapper.steps = 30
     final_pass(mapper, [v0, v1], K, torch.Generator().manual_seed(0))
     assert len(seen) == 2  # rounds of 2 + 1 steps
+
+
+def test_the_first_frame_runs_first_now_steps_and_the_next_rounds_the_rest(frames):
+    from tivne.config import KeyframeConfig
+    from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
+
+    v0, v1, K, f0 = frames
+    cfg = MappingConfig(rays=64, iters=4, first_iters=11, first_now=3)
+    mapper = Mapper(make_field(f0, K), cfg, PixelSampler(), RenderConfig(), LossWeights())
+    store, policy, gen = KeyframeStore(KeyframeConfig()), KeyframePolicy(KeyframeConfig()), torch.Generator().manual_seed(0)
+    store.add(v0)
+    steps = []
+    for k, first in ((0, True), (1, False), (2, False), (3, False)):
+        before = mapper.steps
+        mapper.map_frame(v0 if first else v1, store, policy, K, gen, first=first)
+        steps.append(mapper.steps - before)
+        if k == 1:  # a restored mapper owes what the saved one did
+            fresh = Mapper(mapper.field, cfg, PixelSampler(), RenderConfig(), LossWeights())
+            fresh.load_state_dict(mapper.state_dict())
+            assert fresh.owed == mapper.owed == 4
+    assert steps == [3, 8, 8, 4] and sum(steps) == cfg.first_iters + 3 * cfg.iters
