@@ -215,7 +215,8 @@ class OdometryConfig(Settings):
 class MappingConfig(Settings):
     """iters: steps per mapping round; first_iters: steps the first frame's map gets in all,
     first_now of them on the first frame alone (so it returns in about a second), the rest added to
-    the next rounds, at most iters more each (odometry tracking does not read the map). rays per step,
+    the next rounds, at most iters more each; only with ``tracking.method=odometry``, which does not
+    read the map (a tracker that does gets all first_iters at the first frame). rays per step,
     current_share of them from the current frame, the rest split over the picked keyframes. every:
     map every n-th frame. optimize_poses: refine the window's poses (never the first frame's; on, 20
     Adam steps per round added noise here: 2.6 vs 1.0 cm peak error over 40 frames). The final pass:

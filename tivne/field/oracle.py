@@ -77,17 +77,15 @@ def ground_truth_tracks(view: Any, time_scale: float) -> dict[int, GroundTruthTr
 def attach_tracks(field: TimeVaryingField, view: Any, cfg: ObjectFieldConfig,
                   tracked: Callable[[], Mapping[int, Any]] | None = None) -> None:
     """Give an :class:`ObjectField` the tracks ``cfg.tracks`` names: "oracle", the GT of ``view``;
-    "tracked", what ``tracked()`` returns (the run's object tracker). A no-op for other fields.
+    "tracked", what ``tracked()`` returns (the run's object tracker; the run's settings refuse
+    "tracked" without one). A no-op for other fields.
 
     Raises:
-        ConfigError: "tracked" without an object tracker (``objects.track=false``), or "oracle" on
-            a dataset without GT object poses.
+        ConfigError: "oracle" on a dataset without GT object poses.
     """
     if not isinstance(field, ObjectField):
         return
     if cfg.tracks == "oracle":
         field.set_tracks(ground_truth_tracks(view, field.time_scale))
-    elif tracked is None:
-        raise ConfigError("object_field.tracks=tracked: the object poses come from the object tracker; set objects.track=true")
-    else:
+    elif tracked is not None:
         field.set_tracks(tracked)

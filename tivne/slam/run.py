@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import sys
 import typing
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -115,7 +115,10 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
     """The SLAM loop with every component built from its checked section."""
     s = settings
     field = build_field(s.field, s.object_field)
-    mapper = Mapper(field, s.mapping, PixelSampler(s.sampler), s.render, s.loss)
+    # The next frames' tracking reads the first frame's map unless it is pure odometry: then it gets
+    # all its steps at once (mapping.first_now defers them only where nothing waits on them).
+    mapping = s.mapping if s.tracking.method == "odometry" else replace(s.mapping, first_now=s.mapping.first_iters)
+    mapper = Mapper(field, mapping, PixelSampler(s.sampler), s.render, s.loss)
     attach_optimizer(field, mapper.optimizer, s.mapping)  # field=objects: object fields join the map optimiser
     loop = SlamLoop(
         field=field,
@@ -130,8 +133,8 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
         objects=ObjectTracker(s.objects, intrinsics.K(), s.odometry, masks=getattr(masks, "name", "none")) if s.objects.track else None,
         backend=make_backend(s.backend, s.odometry),
     )
-    if s.object_field.tracks == "tracked":  # field=objects placed by the object tracker's live poses
-        attach_tracks(field, None, s.object_field, None if loop.objects is None else (lambda: loop.objects.tracks))
+    if loop.objects is not None and s.object_field.tracks == "tracked":  # field=objects placed by the tracker's live poses
+        attach_tracks(field, None, s.object_field, lambda: loop.objects.tracks)
     return loop
 
 

@@ -196,3 +196,11 @@ def test_the_lightning_module_only_adapts_the_loop(tiny_cube, tmp_path):
     assert len(system.loop) == 3 and system.field is system.loop.field
     assert not [name for name in vars(system) if name in ("trajectory", "tracked", "db", "timers", "counts")]
     assert isinstance(system.loop.keyframes.view(0), View)
+
+
+def test_the_first_map_is_deferred_only_where_tracking_does_not_read_it(tiny_cube):
+    overrides = ("mapping.first_iters=50", "mapping.first_now=10")
+    assert smoke_loop(tiny_cube.intrinsics, *overrides).mapper.cfg.first_now == 10  # odometry: the map is not read
+    for method in ("field", "odometry+field"):
+        loop = smoke_loop(tiny_cube.intrinsics, *overrides, f"tracking={method}")
+        assert loop.mapper.cfg.first_now == 50, method  # frame 1 is tracked against the first map: all of it at once
