@@ -8,6 +8,7 @@ the run's :class:`tivne.field.clock.Clock` (seconds since the first frame times 
 
 from __future__ import annotations
 
+import bisect
 from typing import Any
 
 import numpy as np
@@ -17,6 +18,7 @@ from data_modules.poses import interpolate_poses
 
 # τ closer than this to an observed τ is that observation (repeated adds replace it).
 TAU_TOLERANCE = 1e-9
+MAX_CACHED_TIMES = 4096
 
 
 def _pose64(pose: torch.Tensor | np.ndarray) -> torch.Tensor:
@@ -42,6 +44,9 @@ class ObjectTrack:
         self.box: torch.Tensor | None = None
         self._taus: list[float] = []
         self._poses: list[torch.Tensor] = []
+        # pose_at by τ: the object fields ask for the same few keyframe times on every query (each
+        # interpolation costs ~1 ms in Python); cleared whenever an observation changes.
+        self._at: dict[float, torch.Tensor] = {}
 
     @classmethod
     def from_poses(cls, object_id: int, taus, poses, name: str | None = None) -> "ObjectTrack":
@@ -62,6 +67,7 @@ class ObjectTrack:
         """Record the object-to-world pose (4, 4) observed at field time ``tau`` (kept sorted; an
         existing observation at the same τ is replaced)."""
         tau, T = float(tau), _pose64(pose)
+        self._at.clear()
         i = int(np.searchsorted(np.asarray(self._taus), tau))
         for j in (i - 1, i):
             if 0 <= j < len(self._taus) and abs(self._taus[j] - tau) <= TAU_TOLERANCE:
@@ -81,7 +87,8 @@ class ObjectTrack:
     def observed_near(self, tau: float, window: float) -> bool:
         """Whether an observation lies within ``window`` of ``tau`` (e.g. to place a mesh only
         where the object was seen around that time)."""
-        return any(abs(t - float(tau)) <= window for t in self._taus)
+        i = bisect.bisect_left(self._taus, float(tau))  # the nearest observations are at i - 1 and i
+        return any(abs(self._taus[j] - float(tau)) <= window for j in (i - 1, i) if 0 <= j < len(self._taus))
 
     def pose_at(self, tau: float) -> torch.Tensor:
         """(4, 4) float64 object-to-world pose at field time ``tau``: SLERP rotation + linear
@@ -89,10 +96,15 @@ class ObjectTrack:
         observation the end pose is held (nothing is extrapolated). Raises on an empty track."""
         if not self._taus:
             raise ValueError(f"object {self.object_id} has no observed pose")
-        taus = np.asarray(self._taus)
-        q = float(np.clip(float(tau), taus[0], taus[-1]))
-        out, _ = interpolate_poses(taus, torch.stack(self._poses), np.asarray([q]), tolerance=TAU_TOLERANCE)
-        return out[0]
+        tau = float(tau)
+        if tau not in self._at:
+            taus = np.asarray(self._taus)
+            q = float(np.clip(tau, taus[0], taus[-1]))
+            out, _ = interpolate_poses(taus, torch.stack(self._poses), np.asarray([q]), tolerance=TAU_TOLERANCE)
+            if len(self._at) >= MAX_CACHED_TIMES:
+                self._at.clear()
+            self._at[tau] = out[0]
+        return self._at[tau].clone()
 
     def grow_box(self, points_obj: torch.Tensor) -> None:
         """Extend :attr:`box` by (N, 3) points in object coordinates (non-finite rows ignored)."""
@@ -118,6 +130,7 @@ class ObjectTrack:
         self.object_id, self.name = int(state["object_id"]), state["name"]
         self._taus = [float(t) for t in state["taus"]]
         self._poses = [_pose64(p) for p in state["poses"]]
+        self._at.clear()
         self.box = None if state["box"] is None else torch.as_tensor(state["box"], dtype=torch.float64).clone()
 
     @classmethod

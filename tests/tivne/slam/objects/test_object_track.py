@@ -52,6 +52,20 @@ def test_add_keeps_order_and_replaces_the_same_tau():
         track.add(3.0, torch.full((4, 4), float("nan")))
 
 
+def test_a_pose_asked_for_before_a_new_observation_is_not_served_stale_after_it():
+    track = ObjectTrack.from_poses(1, [0.0, 1.0], torch.stack([_rz(0), _rz(0, (1.0, 0.0, 0.0))]))
+    assert torch.allclose(track.pose_at(1.0)[:3, 3], torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64))
+    track.pose_at(1.0)[0, 3] = 99.0  # a caller's change never reaches the track
+    track.add(1.0, _rz(0, (2.0, 0.0, 0.0)))  # replaced
+    track.add(2.0, _rz(0, (3.0, 0.0, 0.0)))  # extended
+    assert torch.allclose(track.pose_at(1.0)[:3, 3], torch.tensor([2.0, 0.0, 0.0], dtype=torch.float64))
+    assert torch.allclose(track.pose_at(1.5)[:3, 3], torch.tensor([2.5, 0.0, 0.0], dtype=torch.float64))
+    restored = ObjectTrack.from_state_dict(ObjectTrack.from_poses(1, [1.0], _rz(0, (5.0, 0.0, 0.0))[None]).state_dict())
+    track.load_state_dict(restored.state_dict())
+    assert torch.allclose(track.pose_at(1.0)[:3, 3], torch.tensor([5.0, 0.0, 0.0], dtype=torch.float64))
+    assert track.observed_near(1.2, 0.25) and not track.observed_near(1.3, 0.25) and not track.observed_near(0.7, 0.25)
+
+
 def test_box_and_state_dict_round_trip():
     track = ObjectTrack.from_poses(7, [0.0, 1.0], torch.stack([_rz(0), _rz(90, (1, 0, 0))]), name=None)
     assert track.box is None
