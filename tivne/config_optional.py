@@ -57,7 +57,8 @@ class ObjectsConfig(Settings):
     object, written to objects/<id>.txt. source: "dataset" (the frames' instance ids, Co-Fusion
     mask_id, the synthetic family), "geometric" (connected, depth-continuous segments of the
     frame's dynamic mask, identities by overlap under the predicted motion) or "auto" (the objects
-    follow the run's masks: "dataset" with ``masks=dataset``, else "geometric" on whatever mask the
+    follow the run's masks: with ``masks=dataset`` the instance ids where a frame has them and the
+    segments of its motion mask where it has only that; else "geometric" on whatever mask the
     provider makes: geometric, folder, Mask R-CNN). min_pixels: smaller
     instances are ignored. levels: odometry pyramid levels on an object's pixels (objects are
     small: the coarsest level must keep pixels). depth_smoothing: radius (pixels) of the mean filter

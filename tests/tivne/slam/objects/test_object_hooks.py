@@ -43,6 +43,25 @@ def test_objects_follow_the_masks_of_the_run_unless_told():
             cfg = compose("config", overrides=["experiment=smoke", "dataset.cache_dir=null", "objects.track=true", *overrides])
         return loop_from_config(cfg, Intrinsics(60.0, 60.0, 39.5, 29.5, 80, 60)).objects.source
 
-    assert source("masks=dataset") == "dataset"  # the frames' instance ids
+    assert source("masks=dataset") == "auto-dataset"  # the frames' instance ids, their masks' segments without
     assert source("masks=geometric") == "geometric"  # segments of the geometric masks: no GT in the run
     assert source("masks=geometric", "objects.source=dataset") == "dataset"
+
+
+def test_a_dataset_with_motion_masks_but_no_instance_ids_still_gets_its_objects(tiny_cube):
+    """objects.source=auto with the dataset's masks: a frame without instance ids (e.g. a dataset
+    shipping only binary motion masks) is segmented from its mask instead of losing its objects."""
+    import dataclasses
+
+    from tivne.config_optional import ObjectsConfig
+    from tivne.slam.objects import ObjectTracker
+
+    tracker = ObjectTracker(ObjectsConfig(track=True, min_pixels=50, border_wait=0), tiny_cube.intrinsics.K())
+    frame = tiny_cube[0]
+    assert frame.instances is not None
+    dynamic = frame.instances > 0
+    assert tracker.instances_of(frame, dynamic) is frame.instances
+    bare = dataclasses.replace(frame, instances=None)
+    assert torch.equal(tracker.instances_of(bare, dynamic), dynamic)
+    observed = tracker.observe(bare, tiny_cube.camera_pose(0), 0.0, dynamic)
+    assert len(observed) == 1 and observed[0].new_track
