@@ -43,7 +43,10 @@ def one_thread():
 
 @pytest.mark.parametrize("masks", ["geometric", "dataset"])
 def test_a_restored_system_continues_exactly_as_the_uninterrupted_one(tmp_path, tiny_cube, masks, one_thread):
-    cfg = smoke_cfg(f"masks={masks}", "keyframe.every=2", "output.save_every=0", "output.checkpoint_every=3")
+    # field=tivne: a resumed field=objects run is not bit-exact by design (the object tracker's
+    # reference pyramids are not saved; its first frame after a restore starts a new reference), see
+    # test_a_restored_object_field_run_continues_on_its_tracks.
+    cfg = smoke_cfg(f"masks={masks}", "field=tivne", "keyframe.every=2", "output.save_every=0", "output.checkpoint_every=3")
     frames = [tiny_cube[k] for k in range(6)]
     whole = build_system(cfg, tiny_cube.intrinsics, tmp_path / "whole")
     feed(whole, frames[:3], 0)  # the checkpoint after frame 3 ...
