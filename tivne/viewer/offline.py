@@ -19,7 +19,7 @@ from data_modules.sequence import SequenceView
 from tivne.config import MeshConfig, ViewerConfig
 from tivne.evaluation.ground_truth import ground_truth_of
 from tivne.evaluation.run import RunRecord, gt_trajectory
-from tivne.meshing import extract_mesh, select_mesh_times
+from tivne.meshing import mesh_at, select_mesh_times
 from tivne.reporting.trajectory import trajectory_errors
 from tivne.slam.checkpoint import camera_centres
 from tivne.slam.outputs import RunDir
@@ -90,10 +90,9 @@ def record_run(
     errors = _log_errors(rec, ts, poses, gt_ts, gt_poses)
     mesh_frames = {E.nearest_frame(ts, t): t for t in times}
     _log_frames(rec, ts, poses, gt_ts, gt_poses, to_slam, view, set(mesh_frames), cfg.trajectory_every)
-    written = []
+    written, cache = [], {}  # mesh_at: with field=objects the static field and each object meshed once, objects placed per time
     for i, t in sorted(mesh_frames.items()):
-        m = extract_mesh(record.field, record.meta["clock"].tau(t), mesh.resolution,
-                         culling=mesh, camera_centres=camera_centres(record.meta))
+        m = mesh_at(record.field, record.meta["clock"].tau(t), mesh, camera_centres=camera_centres(record.meta), cache=cache)
         E.set_time(rec, i, t - float(ts[0]))
         E.log_mesh(rec, m)
         written.append((float(t), int(len(m.faces))))

@@ -29,11 +29,13 @@ CUBE = ["experiment=smoke", "dataset.width=120", "dataset.height=90", "dataset.c
         "data.max_frames=16", "mesh.resolution=0.05"]
 
 
-@pytest.fixture(scope="module")
-def cube_run(tmp_path_factory):
-    run_dir = tmp_path_factory.mktemp("cube")
+@pytest.fixture(scope="module", params=["tivne", "objects"])
+def cube_run(tmp_path_factory, request):
+    """The finished run, with the paper's field and with the object fields (whose mesh at t is the
+    static mesh plus the cube's canonical mesh placed by its tracked pose)."""
+    run_dir = tmp_path_factory.mktemp(f"cube-{request.param}")
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = compose("config", overrides=CUBE)
+        cfg = compose("config", overrides=[*CUBE, f"field={request.param}"])
     metrics = run(cfg, run_dir)
     assert metrics["frames"] == 16 and metrics["ate_rmse_m"] < 0.02
     (run_dir / ".hydra").mkdir()
