@@ -18,7 +18,7 @@ from data_modules.poses import interpolate_poses
 
 # τ closer than this to an observed τ is that observation (repeated adds replace it).
 TAU_TOLERANCE = 1e-9
-MAX_CACHED_TIMES = 4096
+MAX_CACHED_TIMES = 4096  # pose_at's cache is dropped beyond this many times (e.g. a long 4D mesh sequence)
 
 
 def _pose64(pose: torch.Tensor | np.ndarray) -> torch.Tensor:
@@ -87,8 +87,9 @@ class ObjectTrack:
     def observed_near(self, tau: float, window: float) -> bool:
         """Whether an observation lies within ``window`` of ``tau`` (e.g. to place a mesh only
         where the object was seen around that time)."""
-        i = bisect.bisect_left(self._taus, float(tau))  # the nearest observations are at i - 1 and i
-        return any(abs(self._taus[j] - float(tau)) <= window for j in (i - 1, i) if 0 <= j < len(self._taus))
+        tau = float(tau)
+        i = bisect.bisect_left(self._taus, tau)  # the nearest observations are at i - 1 and i
+        return any(abs(self._taus[j] - tau) <= window for j in (i - 1, i) if 0 <= j < len(self._taus))
 
     def pose_at(self, tau: float) -> torch.Tensor:
         """(4, 4) float64 object-to-world pose at field time ``tau``: SLERP rotation + linear

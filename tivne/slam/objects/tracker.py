@@ -140,9 +140,10 @@ class ObjectTracker:
     def __init__(self, config: ObjectsConfig, K: torch.Tensor, odometry: OdometryConfig = OdometryConfig(),
                  names: dict[int, str] | None = None, masks: str = "dataset") -> None:
         self.cfg = config
-        # objects.source=auto follows the run's mask provider (its name: "dataset", "geometric", ...);
-        # "auto-dataset": the frames' instance ids where they have them, segments of their masks where not.
-        self.source = config.source if config.source != "auto" else ("auto-dataset" if masks == "dataset" else "geometric")
+        # objects.source=auto follows the run's mask provider (its name: "dataset", "geometric", ...),
+        # and with the dataset's masks segments a frame's mask where the frame has no instance ids.
+        self.source = config.source if config.source != "auto" else ("dataset" if masks == "dataset" else "geometric")
+        self.segment_without_ids = config.source == "auto"
         self.K = K.float()
         self.odo = replace(odometry, levels=config.levels)
         self.names = dict(names or {})
@@ -159,9 +160,9 @@ class ObjectTracker:
         dynamic mask ``dynamic`` (H, W) bool (geometric). Under ``auto`` with the dataset's masks, a
         frame without instance ids (a dataset with motion masks only) gives its mask's segments, so
         its moving objects still get tracks and fields instead of dropping out of the map."""
-        if self.source == "auto-dataset":
-            return frame.instances if frame.instances is not None else dynamic
-        return frame.instances if self.source == "dataset" else dynamic
+        if self.source == "geometric" or (frame.instances is None and self.segment_without_ids):
+            return dynamic
+        return frame.instances
 
     def observe(self, frame: Frame, camera_pose: torch.Tensor, tau: float, dynamic: torch.Tensor | None) -> list[ObjectObservation]:
         """:meth:`step` on :meth:`instances_of`, timed (``seconds``, ``frames``: the objects' cost)."""

@@ -43,7 +43,7 @@ def test_objects_follow_the_masks_of_the_run_unless_told():
             cfg = compose("config", overrides=["experiment=smoke", "dataset.cache_dir=null", "objects.track=true", *overrides])
         return loop_from_config(cfg, Intrinsics(60.0, 60.0, 39.5, 29.5, 80, 60)).objects.source
 
-    assert source("masks=dataset") == "auto-dataset"  # the frames' instance ids, their masks' segments without
+    assert source("masks=dataset") == "dataset"  # the frames' instance ids
     assert source("masks=geometric") == "geometric"  # segments of the geometric masks: no GT in the run
     assert source("masks=geometric", "objects.source=dataset") == "dataset"
 
