@@ -37,6 +37,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--root", default=str(REPO.parent / "shared" / "data" / "tum_fr1_rpy_tail"), help="TUM-layout folder")
     p.add_argument("--camera", default="fr1")
+    p.add_argument("--preset", choices=("tum", "7scenes"), default=None, help="a shared real tail (root, camera, intrinsics as bench/real.py)")
+    p.add_argument("--intrinsics", type=float, nargs=4, default=None, metavar=("FX", "FY", "CX", "CY"), help="with --camera custom")
     p.add_argument("--frames", type=int, default=0, help="frames to use after striding (0 = all)")
     p.add_argument("--stride", type=int, default=1)
     p.add_argument("--mode", choices=("frame", "keyframe"), default="keyframe")
@@ -59,7 +61,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--device", default="cpu")
     p.add_argument("--json", default=None, help="also write the figures to this JSON file")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if args.preset:
+        from bench.real import PRESETS
+
+        folder, args.camera, args.intrinsics = PRESETS[args.preset]
+        args.root = str(REPO.parent / "shared" / "data" / folder)
+    return args
 
 
 def predict(poses: list[torch.Tensor], use_velocity: bool) -> torch.Tensor:
@@ -77,7 +85,8 @@ def rgb_depth_motion(c2w_a: torch.Tensor, c2w_b: torch.Tensor, dt_ab: float, off
 
 def run(args: argparse.Namespace) -> dict[str, float]:
     torch.set_num_threads(args.threads)
-    seq = TUMSequence(root=args.root, camera=args.camera)
+    kwargs = dict(zip(("fx", "fy", "cx", "cy"), args.intrinsics)) if args.intrinsics else {}
+    seq = TUMSequence(root=args.root, camera=args.camera, **kwargs)
     ids = list(range(0, len(seq), args.stride))
     ids = ids[: args.frames] if args.frames > 0 else ids
     cfg = OdometryConfig(
