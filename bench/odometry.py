@@ -39,6 +39,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--camera", default="fr1")
     p.add_argument("--preset", choices=("tum", "7scenes"), default=None, help="a shared real tail (root, camera, intrinsics as bench/real.py)")
     p.add_argument("--intrinsics", type=float, nargs=4, default=None, metavar=("FX", "FY", "CX", "CY"), help="with --camera custom")
+    p.add_argument("--colour-camera", type=float, nargs=4, default=None, metavar=("FX", "FY", "CX", "CY"),
+                   help="colour not registered to depth: its camera (dataset.colour_camera)")
     p.add_argument("--frames", type=int, default=0, help="frames to use after striding (0 = all)")
     p.add_argument("--stride", type=int, default=1)
     p.add_argument("--mode", choices=("frame", "keyframe"), default="keyframe")
@@ -65,7 +67,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.preset:
         from bench.real import PRESETS
 
-        folder, args.camera, args.intrinsics = PRESETS[args.preset]
+        folder, args.camera, args.intrinsics, preset_colour = PRESETS[args.preset]
+        args.colour_camera = args.colour_camera or preset_colour
         args.root = str(REPO.parent / "shared" / "data" / folder)
     return args
 
@@ -86,7 +89,7 @@ def rgb_depth_motion(c2w_a: torch.Tensor, c2w_b: torch.Tensor, dt_ab: float, off
 def run(args: argparse.Namespace) -> dict[str, float]:
     torch.set_num_threads(args.threads)
     kwargs = dict(zip(("fx", "fy", "cx", "cy"), args.intrinsics)) if args.intrinsics else {}
-    seq = TUMSequence(root=args.root, camera=args.camera, **kwargs)
+    seq = TUMSequence(root=args.root, camera=args.camera, colour_camera=args.colour_camera, **kwargs)
     ids = list(range(0, len(seq), args.stride))
     ids = ids[: args.frames] if args.frames > 0 else ids
     cfg = OdometryConfig(

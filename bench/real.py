@@ -32,30 +32,37 @@ sys.path.insert(0, str(REPO))
 
 from bench.peer import figures_line, run_open3d, spawn, trajectory_figures  # noqa: E402
 
-# The shared real tails (../shared/data/README.md beside the checkout): root folder name, camera and its intrinsics.
+# The shared real tails (../shared/data/README.md beside the checkout): root folder name, camera, its
+# intrinsics and, for colour not registered to depth, the colour camera (dataset.colour_camera).
 PRESETS = {
-    "tum": ("tum_fr1_rpy_tail", "fr1", None),
-    "7scenes": ("7scenes_redkitchen_tail", "custom", (585.0, 585.0, 320.0, 240.0)),  # the Kinect defaults 7-Scenes documents
+    "tum": ("tum_fr1_rpy_tail", "fr1", None, None),
+    # The depth camera: the Kinect defaults 7-Scenes documents. The colour camera: not registered (the
+    # dataset says so), estimated from the shared tail by `python -m data_modules.inspect ... colour_camera=true
+    # max_sampled=40` (colour edges on depth edges; the Kinect's nominal colour camera is 525, 525, 319.5, 239.5).
+    "7scenes": ("7scenes_redkitchen_tail", "custom", (585.0, 585.0, 320.0, 240.0), (527.0, 531.0, 315.0, 238.0)),
 }
 
 
-def camera_overrides(camera: str, intrinsics: tuple[float, float, float, float] | None) -> list[str]:
-    """dataset.* overrides of the camera (a preset name, or custom with fx, fy, cx, cy)."""
+def camera_overrides(camera: str, intrinsics: tuple[float, float, float, float] | None, colour_camera=None) -> list[str]:
+    """dataset.* overrides of the camera (a preset name, or custom with fx, fy, cx, cy) and of an unregistered colour camera."""
     out = [f"dataset.camera={camera}"]
     if intrinsics is not None:
         out += [f"dataset.{k}={v}" for k, v in zip(("fx", "fy", "cx", "cy"), intrinsics)]
+    if colour_camera is not None:
+        out.append(f"dataset.colour_camera=[{','.join(str(v) for v in colour_camera)}]")
     return out
 
 
-def load_view(root: str, camera: str, frames: int, intrinsics: tuple[float, float, float, float] | None = None):
+def load_view(root: str, camera: str, frames: int, intrinsics: tuple[float, float, float, float] | None = None, colour_camera=None):
     from data_modules.sequence import SequenceView
     from data_modules.tum import TUMSequence
 
     kwargs = dict(zip(("fx", "fy", "cx", "cy"), intrinsics)) if intrinsics is not None else {}
-    return SequenceView(TUMSequence(root=root, camera=camera, **kwargs), max_frames=frames or None)
+    seq = TUMSequence(root=root, camera=camera, colour_camera=None if colour_camera is None else list(colour_camera), **kwargs)
+    return SequenceView(seq, max_frames=frames or None)
 
 
-def run_tivne(root: str, camera: str, frames: int, overrides: list[str], intrinsics=None) -> dict[str, float]:
+def run_tivne(root: str, camera: str, frames: int, overrides: list[str], intrinsics=None, colour_camera=None) -> dict[str, float]:
     from hydra import compose, initialize_config_dir
 
     from data_modules.tables import read_tum_trajectory
@@ -63,14 +70,14 @@ def run_tivne(root: str, camera: str, frames: int, overrides: list[str], intrins
     from tivne.slam.run import run
     register_defaults()  # the config nodes conf/*.yaml compose onto
 
-    args = ["dataset=tum", f"dataset.root={root}", *camera_overrides(camera, intrinsics), "trainer.progress_bar=false", "output.image_every=0"]
+    args = ["dataset=tum", f"dataset.root={root}", *camera_overrides(camera, intrinsics, colour_camera), "trainer.progress_bar=false", "output.image_every=0"]
     if frames:
         args.append(f"data.max_frames={frames}")
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=[*args, *overrides])
     out = Path(tempfile.mkdtemp(prefix="tivne-real-"))
     metrics = run(cfg, out)
-    view = load_view(root, camera, frames, intrinsics)
+    view = load_view(root, camera, frames, intrinsics, colour_camera)
     ts, est = read_tum_trajectory(out / "trajectory.txt")
     gt = {float(view.timestamps[i]): view[i].gt_pose for i in range(len(view))}
     keep = [i for i, t in enumerate(ts) if gt.get(float(t)) is not None]
@@ -82,10 +89,11 @@ def run_tivne(root: str, camera: str, frames: int, overrides: list[str], intrins
 def child(args: argparse.Namespace, overrides: list[str]) -> None:
     """Run one system in this process and print its figures (plus peak RSS) as one JSON line."""
     intrinsics = tuple(args.intrinsics) if args.intrinsics else None
+    colour = tuple(args.colour_camera) if args.colour_camera else None
     if args.only == "open3d":
-        figures = run_open3d(load_view(args.root, args.camera, args.frames, intrinsics))
+        figures = run_open3d(load_view(args.root, args.camera, args.frames, intrinsics, colour))
     else:
-        figures = run_tivne(args.root, args.camera, args.frames, overrides, intrinsics)
+        figures = run_tivne(args.root, args.camera, args.frames, overrides, intrinsics, colour)
     print(figures_line(figures))
 
 
@@ -93,6 +101,8 @@ def run_child(system: str, args: argparse.Namespace, overrides: list[str]) -> di
     cmd = [sys.executable, __file__, "--child", "--only", system, "--root", args.root, "--camera", args.camera, "--frames", str(args.frames)]
     if args.intrinsics:
         cmd += ["--intrinsics", *map(str, args.intrinsics)]
+    if args.colour_camera:
+        cmd += ["--colour-camera", *map(str, args.colour_camera)]
     figures, why = spawn([*cmd, *overrides], args.threads)
     if figures is None:
         print(f"{system}: failed ({why})", file=sys.stderr)
@@ -123,6 +133,8 @@ def main() -> None:
     parser.add_argument("--root", default=str(DEFAULT_ROOT), help="a TUM-layout folder")
     parser.add_argument("--camera", default="fr1")
     parser.add_argument("--intrinsics", type=float, nargs=4, default=None, metavar=("FX", "FY", "CX", "CY"), help="with --camera custom")
+    parser.add_argument("--colour-camera", type=float, nargs=4, default=None, metavar=("FX", "FY", "CX", "CY"),
+                        help="colour not registered to depth: its camera (dataset.colour_camera)")
     parser.add_argument("--threads", type=int, default=2, help="OpenMP threads of each system's process")
     parser.add_argument("--frames", type=int, default=0, help="first n frames (0 = all)")
     parser.add_argument("--only", choices=("tivne", "open3d"), default=None)
@@ -130,7 +142,8 @@ def main() -> None:
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args, overrides = parser.parse_known_args()
     if args.preset:
-        folder, args.camera, args.intrinsics = PRESETS[args.preset]
+        folder, args.camera, args.intrinsics, preset_colour = PRESETS[args.preset]
+        args.colour_camera = args.colour_camera or preset_colour
         args.root = str(Path(args.data_dir) / folder)
     if args.child:
         return child(args, overrides)

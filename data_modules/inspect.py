@@ -3,6 +3,9 @@
 Prints a summary (frames, duration, resolution, intrinsics, sampled depth range, % valid depth,
 % dynamic pixels, GT availability); optionally writes the GT camera trajectory in TUM format
 (``gt_out=PATH``) and a PNG contact sheet (``sheet_out=PATH``: one row per frame, rgb | depth | mask).
+``colour_camera=true`` also estimates, over the sampled frames, the colour camera of a sensor whose
+colour is not registered to its depth (:mod:`data_modules.registration`; the value for
+``dataset.colour_camera``); on registered colour it returns about the depth camera.
 
 Bad input (a :class:`DatasetError`, a missing mandatory config value such as ``dataset.root=???``,
 an output that cannot be written: any OSError, named by its path) prints one line
@@ -86,6 +89,22 @@ def summarize(view: SequenceDataset, max_sampled: int = 20) -> dict[str, object]
         "has_masks": bool(view.has_masks),
         "frames_sampled": int(len(idx)),
     }
+
+
+def colour_camera_summary(view: SequenceDataset, max_sampled: int = 20) -> dict[str, object]:
+    """The colour camera estimated over up to ``max_sampled`` evenly spaced frames
+    (:func:`data_modules.registration.estimate_colour_camera`): colour_camera [fx, fy, cx, cy],
+    edge_contrast_registered / _estimated."""
+    from data_modules.registration import edge_frame, estimate_colour_camera
+
+    frames = [view[int(i)] for i in sample_indices(len(view), max_sampled)]
+    evidence = [edge_frame(f.rgb.numpy(), f.depth.numpy(), view.intrinsics) for f in frames]
+    try:
+        est = estimate_colour_camera(evidence, view.intrinsics)
+    except ValueError as exc:
+        raise DatasetError(f"dataset {view.name}", str(exc)) from None
+    return {"colour_camera": list(est.colour_camera), "edge_contrast_registered": est.contrast_registered,
+            "edge_contrast_estimated": est.contrast_estimated}
 
 
 def format_summary(s: dict[str, object]) -> str:
@@ -267,6 +286,8 @@ def run(cfg) -> int:
             if cfg.sheet_out:
                 write_contact_sheet(str(cfg.sheet_out), view, int(cfg.sheet_frames))
                 summary["sheet_out"] = str(cfg.sheet_out)
+            if cfg.get("colour_camera", False):
+                summary.update(colour_camera_summary(view, cfg.get("max_sampled", 20)))
     except Exception as exc:  # noqa: BLE001 -- only bad-input errors are turned into one line
         root = find_cause(exc)
         if root is None:
@@ -277,6 +298,11 @@ def run(cfg) -> int:
         print(json.dumps(summary))
     else:
         print(format_summary(summary))
+        if "colour_camera" in summary:
+            cam = ", ".join(f"{v:.1f}" for v in summary["colour_camera"])
+            print(f"colour camera: [{cam}] (colour-edge strength on depth edges {summary['edge_contrast_registered']:.2f} "
+                  f"as registered -> {summary['edge_contrast_estimated']:.2f}; over {summary['frames_sampled']} frames)")
+            print(f"  unregistered colour: dataset.colour_camera=[{cam}]")
         for key in ("gt_out", "sheet_out"):
             if key in summary:
                 print(f"wrote {key}:{' ' * (8 - len(key))}{summary[key]}")

@@ -19,6 +19,14 @@ Distortion: freiburg1/2 and Bonn have radial-tangential distortion. With ``undis
 with the *same* K (colour bilinear, depth and masks nearest-neighbour so no depths are mixed), which
 keeps the 1:1 colour/depth pixel registration. Pixels that map from outside the image become black
 / invalid. freiburg3 has zero distortion, so nothing is done there.
+
+Colour not registered to depth (e.g. 7-Scenes: raw Kinect streams, colour camera f ≈ 0.9 × the depth
+camera's): ``colour_camera=[fx, fy, cx, cy]`` gives the colour camera's intrinsics; each frame's colour
+is then resampled onto the depth camera's pixels (through the colour camera's distortion, if any), so
+``Frame.rgb`` and ``Frame.depth`` share pixels as the data contract requires. The model is the
+homography K_colour K⁻¹ (the two cameras' centres taken as one: a baseline's parallax at the scene's
+usual depth is absorbed by the principal point). ``python -m tivne.calibrate`` estimates it from the
+frames.
 """
 
 from __future__ import annotations
@@ -40,6 +48,7 @@ from data_modules.io import (
     require_dir,
 )
 from data_modules.poses import interpolate_poses, orthonormalize_pose
+from data_modules.registration import colour_maps
 from data_modules.sequence import SequenceDataset
 from data_modules.tables import finite_float, read_pose_table, read_table
 from data_modules.timestamps import associate_by_timestamp, check_monotonic_timestamps
@@ -101,6 +110,15 @@ def _check_numbers(**values: object) -> None:
             raise DatasetError(f"dataset.{key}", f"must be a finite number {'> 0' if strict else '>= 0'}, got {value!r}")
 
 
+def _colour_camera(values: list[float]) -> tuple[float, float, float, float]:
+    """dataset.colour_camera as (fx, fy, cx, cy), or a one-line DatasetError."""
+    vals = tuple(values)
+    ok = len(vals) == 4 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in vals)
+    if not ok or vals[0] <= 0 or vals[1] <= 0:
+        raise DatasetError("dataset.colour_camera", f"must be [fx, fy, cx, cy] with fx, fy > 0, got {list(values)!r}")
+    return tuple(float(v) for v in vals)
+
+
 class TUMSequence(SequenceDataset):
     """A TUM RGB-D sequence folder (``rgbd_dataset_freiburgX_<name>``).
 
@@ -117,6 +135,7 @@ class TUMSequence(SequenceDataset):
         gt_max_gap: longest GT gap [s] to interpolate across (0.1); None = any.
         gt_file: ground-truth file name relative to root (``groundtruth.txt``), if present.
         name: sequence name (default: the root folder's name).
+        colour_camera: [fx, fy, cx, cy] of unregistered colour's camera (module docstring); None = registered.
     """
 
     default_camera = "fr3"
@@ -138,6 +157,7 @@ class TUMSequence(SequenceDataset):
         gt_max_gap: float | None = 0.1,
         gt_file: str = "groundtruth.txt",
         name: str | None = None,
+        colour_camera: list[float] | None = None,
     ) -> None:
         self.root = require_dir(root, f"{type(self).__name__} sequence folder")
         self.name = name or self.root.name
@@ -180,12 +200,12 @@ class TUMSequence(SequenceDataset):
             width, height = width or w, height or h
         self.intrinsics = intrinsics_from(f"dataset (camera {camera})", *vals, width, height)
 
-        self._maps = None
-        if undistort and np.any(self.distortion != 0):
-            K = self.intrinsics.K(dtype=torch.float64).numpy()
-            size = (self.intrinsics.width, self.intrinsics.height)
-            self._maps = cv2.initUndistortRectifyMap(K, self.distortion, None, K, size, cv2.CV_32FC1)
+        own = (self.intrinsics.fx, self.intrinsics.fy, self.intrinsics.cx, self.intrinsics.cy)  # undistorted onto the same K
+        self._maps = colour_maps(self.intrinsics, own, self.distortion) if undistort and np.any(self.distortion != 0) else None
         self.undistort = self._maps is not None
+        self.colour_camera = None if colour_camera is None else _colour_camera(colour_camera)
+        dist = self.distortion if undistort else None  # colour: its own camera, resampled onto the depth pixels
+        self._colour_maps = self._maps if self.colour_camera is None else colour_maps(self.intrinsics, self.colour_camera, dist)
 
         # ground truth
         self.gt_path = self.root / gt_file
@@ -205,19 +225,19 @@ class TUMSequence(SequenceDataset):
         """Hook: map interpolated groundtruth poses to camera-to-world (identity for TUM)."""
         return poses
 
-    def _remap(self, img: np.ndarray, nearest: bool) -> np.ndarray:
-        if self._maps is None:
+    def _remap(self, img: np.ndarray, nearest: bool, maps: tuple | None) -> np.ndarray:
+        if maps is None:
             return img
         interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
-        return cv2.remap(img, self._maps[0], self._maps[1], interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return cv2.remap(img, maps[0], maps[1], interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
     def load_frame(self, i: int) -> Frame:
         rgb = read_rgb(self.rgb_paths[i])
         depth = read_depth_png(self.depth_paths[i], self.depth_scale)
         check_same_size(rgb, depth, self.rgb_paths[i], self.depth_paths[i])
         check_size(rgb, self.intrinsics, self.rgb_paths[i], "colour image")
-        rgb = np.clip(self._remap(rgb, nearest=False), 0.0, 1.0)
-        depth = self._remap(depth, nearest=True)
+        rgb = np.clip(self._remap(rgb, False, self._colour_maps), 0.0, 1.0)
+        depth = self._remap(depth, True, self._maps)
         pose = self.gt_poses[i]
         frame = Frame(
             index=i,
@@ -233,6 +253,8 @@ class TUMSequence(SequenceDataset):
     def describe(self) -> dict[str, object]:
         d = super().describe()
         d.update(gt_valid_frames=int(self.gt_valid.sum()), camera=self.camera, undistort=self.undistort, dropped_rgb=self.dropped_rgb)
+        if self.colour_camera is not None:
+            d.update(colour_camera=list(self.colour_camera))
         return d
 
 

@@ -216,3 +216,17 @@ def test_corrupt_image_gives_one_line_without_opencv_warnings(tmp_path, capfd):
     err = capfd.readouterr().err.splitlines()
     assert status == 2
     assert err == [f"error: {depth}: cannot decode image (not a valid PNG/JPEG file?)"]
+
+
+def test_colour_camera_estimate_in_the_summary(capsys):
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("inspect", overrides=["dataset.width=160", "dataset.height=120", "dataset.num_frames=8", "dataset.cache_dir=null",
+                                            "colour_camera=true", "max_sampled=8"])
+    assert run(cfg) == 0
+    out = capsys.readouterr().out
+    assert "colour camera: [" in out and "dataset.colour_camera=[" in out
+    cam = [float(v) for v in out.split("dataset.colour_camera=[")[1].split("]")[0].split(",")]
+    assert len(cam) == 4 and all(v > 0 for v in cam)  # the cube's colour is registered: about its depth camera
+    assert abs(cam[0] / 128.0 - 1) < 0.1 and abs(cam[2] - 79.5) < 16
