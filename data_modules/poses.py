@@ -151,3 +151,57 @@ def interpolate_poses(
         out[rows, :3, 3] = (1 - s)[:, None] * poses[a, :3, 3] + s[:, None] * poses[b, :3, 3]
     valid[snap | inside] = True
     return out, valid
+
+
+def rotation_vector(R: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices (..., 3, 3) -> axis · angle (..., 3) (the SO(3) log; angle in [0, π])."""
+    q = matrix_to_quat(R)  # (..., 4) unit, qw >= 0 is not guaranteed: take the short way
+    q = torch.where(q[..., 3:] < 0, -q, q)
+    s = q[..., :3].norm(dim=-1, keepdim=True)
+    angle = 2.0 * torch.atan2(s, q[..., 3:])
+    return torch.where(s > 1e-12, q[..., :3] * (angle / s.clamp_min(1e-12)), 2.0 * q[..., :3])
+
+
+def rotation_from_vector(w: torch.Tensor) -> torch.Tensor:
+    """Axis · angle (..., 3) -> rotation matrices (..., 3, 3) (the SO(3) exp)."""
+    half = 0.5 * w.norm(dim=-1, keepdim=True)
+    scale = torch.where(half > 1e-12, torch.sin(half) / half.clamp_min(1e-12), torch.ones_like(half) - half**2 / 6)
+    return quat_to_matrix(torch.cat([0.5 * w * scale, torch.cos(half)], dim=-1))
+
+
+def pose_on_track(times: np.ndarray, poses: torch.Tensor, t: float, baseline: float = 0.1) -> torch.Tensor:
+    """The pose (4, 4) float64 of a sampled trajectory at any time ``t``.
+
+    Inside [times[0], times[-1]]: :func:`interpolate_poses` (SLERP + linear). Outside: the end pose
+    continued at the end's velocity, translation and rotation apart as the interpolation treats them
+    (a body that slides and spins about its origin keeps doing so), t(s) = t_e + v·s and
+    R(s) = exp(ω·s)·R_e; v and ω are measured between the end sample and the sample ``baseline``
+    seconds (at least one sample) inside it, so one noisy pose does not set the speed. With one sample
+    the pose is held.
+
+    Args:
+        times: (N,) increasing sample times; poses: (N, 4, 4).
+    """
+    times = np.asarray(times, dtype=np.float64)
+    poses = torch.as_tensor(poses, dtype=torch.float64)
+    n, t = len(times), float(t)
+    if n == 0:
+        raise ValueError("a trajectory needs at least one pose")
+    if n == 1 or times[0] - TIME_TOLERANCE_S <= t <= times[-1] + TIME_TOLERANCE_S:
+        q = float(np.clip(t, times[0], times[-1]))
+        return interpolate_poses(times, poses, np.asarray([q]), tolerance=TIME_TOLERANCE_S)[0][0]
+    if t > times[-1]:
+        end = n - 1
+        inner = int(np.clip(np.searchsorted(times, times[-1] - baseline, side="right") - 1, 0, n - 2))
+    else:
+        end = 0
+        inner = int(np.clip(np.searchsorted(times, times[0] + baseline, side="left"), 1, n - 1))
+    span = times[end] - times[inner]
+    A, B = poses[inner], poses[end]
+    omega = rotation_vector(B[:3, :3] @ A[:3, :3].T) / span
+    v = (B[:3, 3] - A[:3, 3]) / span
+    s = t - times[end]
+    out = B.clone()
+    out[:3, :3] = rotation_from_vector(omega * s) @ B[:3, :3]
+    out[:3, 3] = B[:3, 3] + v * s
+    return out

@@ -166,3 +166,31 @@ def test_interpolate_poses_snaps_within_tolerance():
         assert torch.equal(out[k], P_[j])
     _, exact = interpolate_poses(t, P_, [3.0 + eps, 3.0], max_gap=0.1, tolerance=0.0)
     assert exact.tolist() == [False, True]
+
+
+def _slide_and_spin(t: float) -> torch.Tensor:
+    """A body sliding at (1.3, 0, 0.1) m/s while it spins at 2 rad/s about its own z axis."""
+    T = torch.eye(4, dtype=torch.float64)
+    T[:3, :3] = P.rotation_from_vector(torch.tensor([0.0, 0.0, 2.0 * t], dtype=torch.float64))
+    T[:3, 3] = torch.tensor([1.3 * t, 0.2, 0.1 * t], dtype=torch.float64)
+    return T
+
+
+def test_rotation_vector_and_back():
+    w = torch.tensor([[0.3, -0.2, 0.5], [1e-14, 0.0, 0.0], [3.0, 0.1, 0.0]], dtype=torch.float64)
+    torch.testing.assert_close(P.rotation_vector(P.rotation_from_vector(w)), w, atol=1e-12, rtol=0)
+
+
+def test_pose_on_track_interpolates_inside_and_continues_the_end_velocity_outside():
+    times = np.arange(0.4, 1.0, 1 / 30)
+    poses = torch.stack([_slide_and_spin(float(t)) for t in times])
+    for t in (0.1, 0.55, 1.3):  # before, inside, after: exact for a constant slide and spin
+        torch.testing.assert_close(P.pose_on_track(times, poses, t), _slide_and_spin(t), atol=1e-6, rtol=0)
+    # the speed comes from a baseline, not from the last step alone: a 1 mm jitter of the last pose
+    # moves a pose 0.3 s ahead by ~1 mm + 1 mm·0.3/0.1, not by 1 mm·0.3/0.033
+    noisy = poses.clone()
+    noisy[-1, 0, 3] += 0.001
+    off = (P.pose_on_track(times, noisy, times[-1] + 0.3)[:3, 3] - _slide_and_spin(times[-1] + 0.3)[:3, 3]).norm()
+    assert float(off) < 0.0045
+    with pytest.raises(ValueError):
+        P.pose_on_track(np.zeros(0), torch.zeros(0, 4, 4), 0.0)

@@ -14,18 +14,17 @@ from typing import Any
 import numpy as np
 import torch
 
-from data_modules.poses import interpolate_poses
+from data_modules.poses import pose_on_track
 from tivne.config import FieldConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.field.objects import ObjectField, ObjectPoses, ObjectSlot
 
-# τ closer than this to a recorded τ takes that pose.
-TAU_TOLERANCE = 1e-9
 
 
 class RecordedTrack:
     """A track rebuilt from its samples: (N,) τ increasing, (N, 4, 4) object-to-world, box (2, 3)
-    or None. Between samples SLERP + lerp; outside them the end pose is held."""
+    or None. Between samples SLERP + lerp; outside them the end pose continued at the end's velocity,
+    as the live track (:func:`data_modules.poses.pose_on_track`)."""
 
     def __init__(self, taus: torch.Tensor, poses: torch.Tensor, box: torch.Tensor | None) -> None:
         self.taus = np.asarray(torch.as_tensor(taus, dtype=torch.float64))
@@ -33,8 +32,7 @@ class RecordedTrack:
         self.box = None if box is None else torch.as_tensor(box, dtype=torch.float64)
 
     def pose_at(self, tau: float) -> torch.Tensor:
-        q = float(np.clip(float(tau), self.taus[0], self.taus[-1]))
-        return interpolate_poses(self.taus, self.poses, np.asarray([q]), tolerance=TAU_TOLERANCE)[0][0]
+        return pose_on_track(self.taus, self.poses, float(tau))
 
     def observed_taus(self) -> list[float]:
         return [float(t) for t in self.taus]

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from data_modules.poses import interpolate_poses
+from data_modules.poses import pose_on_track
 
 # τ closer than this to an observed τ is that observation (repeated adds replace it).
 TAU_TOLERANCE = 1e-9
@@ -94,17 +94,16 @@ class ObjectTrack:
     def pose_at(self, tau: float) -> torch.Tensor:
         """(4, 4) float64 object-to-world pose at field time ``tau``: SLERP rotation + linear
         translation between the bracketing observations; before the first / after the last
-        observation the end pose is held (nothing is extrapolated). Raises on an empty track."""
+        observation the end pose continued at the end's velocity (:func:`data_modules.poses.pose_on_track`:
+        an object entering or leaving the view keeps moving; readers place it only near an
+        observation). Raises on an empty track."""
         if not self._taus:
             raise ValueError(f"object {self.object_id} has no observed pose")
         tau = float(tau)
         if tau not in self._at:
-            taus = np.asarray(self._taus)
-            q = float(np.clip(tau, taus[0], taus[-1]))
-            out, _ = interpolate_poses(taus, torch.stack(self._poses), np.asarray([q]), tolerance=TAU_TOLERANCE)
             if len(self._at) >= MAX_CACHED_TIMES:
                 self._at.clear()
-            self._at[tau] = out[0]
+            self._at[tau] = pose_on_track(np.asarray(self._taus), torch.stack(self._poses), tau)
         return self._at[tau].clone()
 
     def grow_box(self, points_obj: torch.Tensor) -> None:

@@ -24,7 +24,7 @@ def _rz(deg: float, t=(0.0, 0.0, 0.0)) -> torch.Tensor:
     return T
 
 
-def test_pose_at_interpolates_rotation_and_translation_and_holds_the_ends():
+def test_pose_at_interpolates_between_observations_and_continues_the_end_velocity_beyond():
     A, B = _rz(10, (0.0, 0.0, 1.0)), _rz(50, (1.0, 2.0, 1.0))
     track = ObjectTrack.from_poses(4, [0.5, 1.5], torch.stack([A, B]), name="box")
     assert track.observed_taus() == [0.5, 1.5] and len(track) == 2 and track.name == "box"
@@ -33,8 +33,11 @@ def test_pose_at_interpolates_rotation_and_translation_and_holds_the_ends():
     q = track.pose_at(0.75)
     torch.testing.assert_close(q, _rz(20, (0.25, 0.5, 1.0)), atol=1e-12, rtol=0)
     torch.testing.assert_close(track.pose_at(0.5), A)
-    torch.testing.assert_close(track.pose_at(-3.0), A)  # held, never extrapolated
-    torch.testing.assert_close(track.pose_at(9.0), B)
+    # beyond the ends: 40 deg and (1, 2, 0) m per τ unit go on (an object entering or leaving keeps moving)
+    torch.testing.assert_close(track.pose_at(0.25), _rz(0, (-0.25, -0.5, 1.0)), atol=1e-9, rtol=0)
+    torch.testing.assert_close(track.pose_at(2.0), _rz(70, (1.5, 3.0, 1.0)), atol=1e-9, rtol=0)
+    single = ObjectTrack.from_poses(5, [0.5], A[None])
+    torch.testing.assert_close(single.pose_at(3.0), A)  # one observation: no velocity, held
     assert track.pose_at(1.0).dtype == torch.float64 and track.pose_at(1.0).shape == (4, 4)
 
 
