@@ -71,7 +71,12 @@ class ObjectsConfig(Settings):
     border_wait: a new object the image border cuts off waits up to this many frames for a whole
     view before its track starts from it (0 = start at once); the waiting views are then aligned to
     it, back to the first that shows less than half as much of the object (a sliver's rotation is
-    barely determined, and every later view would be aligned to it)."""
+    barely determined, and every later view would be aligned to it). accel_sigma (m/s²),
+    angular_accel_sigma (rad/s²): the motion prior of each object's odometry, a Gaussian on the
+    deviation from its constant-velocity prediction at its centre with σ = ½ a Δt² over the Δt
+    since its last observation (0 = no prior): the pixels decide where they constrain the pose;
+    where they do not (a symmetric object's spin, texture smeared by motion blur) the object keeps
+    its motion instead of drifting."""
 
     section: ClassVar[str] = "objects"
     track: bool = False
@@ -85,6 +90,8 @@ class ObjectsConfig(Settings):
     reid_size_ratio: float = setting(1.6, ge=1)
     max_gap_s: float = setting(0.2, gt=0)
     border_wait: int = setting(15, ge=0)
+    accel_sigma: float = setting(4.0, ge=0)
+    angular_accel_sigma: float = setting(30.0, ge=0)
 
 
 @dataclass(frozen=True)

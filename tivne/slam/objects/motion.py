@@ -75,3 +75,21 @@ def interpolate_se3(A: torch.Tensor, B: torch.Tensor, s: float) -> torch.Tensor:
     A, B = A.double(), B.double()
     return A @ se3_exp(float(s) * se3_log((invert_pose(A) @ B)[None])[0])
 
+
+
+def centred_information(sigma_t: float, sigma_r: float, centre: torch.Tensor) -> torch.Tensor:
+    """(6, 6) float64 information of an isotropic pose prior (σ_t metres, σ_r radians) on the
+    motion of a body at ``centre`` (3,), in the tangent of a left twist δ = (v, w) about the origin.
+
+    The body's own twist is ε = (v − [c]× w, w) (the velocity of its centre, its rotation), so
+    Λ_δ = Mᵀ Λ_ε M with M = [[I, −[c]×], [0, I]]: a spin about the body's centre is penalised
+    as a rotation only, not as the swing of the far-away origin about it.
+    """
+    c = centre.double()
+    cx = torch.zeros(3, 3, dtype=torch.float64)
+    cx[0, 1], cx[0, 2], cx[1, 2] = -c[2], c[1], -c[0]
+    cx = cx - cx.T
+    M = torch.eye(6, dtype=torch.float64)
+    M[:3, 3:] = -cx
+    lam = torch.diag(torch.tensor([1.0 / sigma_t**2] * 3 + [1.0 / sigma_r**2] * 3, dtype=torch.float64))
+    return M.T @ lam @ M

@@ -2,14 +2,18 @@
 
 Per frame: the object instances (:mod:`tivne.slam.objects.instances`), then for each the existing
 dense odometry (:func:`tivne.slam.tracking.odometry.track_pyramids`, photometric + point-to-plane, robust,
-coarse to fine) on that object's pixels only, against the object's own last keyframe observation,
-turned into an object-to-world pose (:mod:`tivne.slam.objects.motion` derives it). A constant-
-velocity prediction starts the odometry; an object seen again after more than ``max_gap_s`` starts
-from its last pose moved so that its last observed points' centre lands on the new observation's.
+coarse to fine) on that object's pixels only, against the object's own keyframe observations,
+turned into an object-to-world pose (:mod:`tivne.slam.objects.motion` derives it). The track's
+velocity predicts the pose and, as a prior of ``objects.accel_sigma`` / ``angular_accel_sigma``,
+holds what the pixels leave open (a symmetric object's spin, a blurred view). An object seen again
+after more than ``max_gap_s`` starts from its last pose moved so that its last observed points'
+centre lands on the new observation's, turned by the best of several rotation hypotheses
+(:mod:`tivne.slam.objects.reacquire`). Objects cut off by the image border wait for a whole view.
 """
 
 from __future__ import annotations
 
+import bisect
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -19,9 +23,10 @@ import numpy as np
 import torch
 
 from data_modules.frame import Frame
+from data_modules.poses import pose_on_track
 from data_modules.tables import write_tum_trajectory
 from tivne.config import ObjectsConfig, OdometryConfig
-from tivne.geometry import backproject_depth, orthonormalize_pose, transform_points
+from tivne.geometry import backproject_depth, invert_pose, orthonormalize_pose, transform_points
 from tivne.slam.objects.instances import (
     dataset_instances,
     erode,
@@ -34,10 +39,11 @@ from tivne.slam.objects.instances import (
     touches_border,
     world_points,
 )
-from tivne.slam.objects.motion import camera_in_object, constant_velocity, object_pose, odometry_init
+from tivne.slam.objects.motion import camera_in_object, centred_information, constant_velocity, object_pose, odometry_init
+from tivne.slam.objects.reacquire import Hypothesis, best_alignment, rotation_hypotheses, spin_axis
 from tivne.slam.objects.track import ObjectTrack
 from tivne.slam.outputs import RunDir
-from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
+from tivne.slam.tracking.odometry import OdometryResult, PosePrior, frame_pyramid, track_pyramids
 from tivne.slam.tracking.pyramid import PyramidLevel
 
 # A track is written once it has this many observed poses (one-frame segments are clutter).
@@ -48,6 +54,14 @@ MIN_OVERLAP = 0.1
 MAX_REFERENCES = 12
 # A keyframe is reused when it saw the object from within this angle of the predicted view.
 REUSE_ANGLE_DEG = 12.0
+# Re-acquisition after a gap: rotation hypotheses every this many degrees about each camera axis,
+# each aligned with this many Gauss–Newton iterations at the coarsest level.
+REACQUIRE_STEP_DEG = 30.0
+REACQUIRE_ITERATIONS = 8
+# ... and about the axis the object last turned about, when it turned by at least MIN_SPIN_DEG over
+# its last SPIN_BASELINE_S of observations.
+SPIN_BASELINE_S = 0.3
+MIN_SPIN_DEG = 5.0
 
 
 @dataclass(frozen=True)
@@ -203,35 +217,75 @@ class ObjectTracker:
         rgb, depth = frame.rgb.cpu(), frame.depth.cpu()
         pyramid = frame_pyramid(rgb, smooth_depth(depth, inner, self.cfg.depth_smoothing), self.K, self.odo, ~inner)
         pixels, t = int(mask.sum()), float(frame.timestamp)
-        if oid not in self.tracks:
-            # A sliver at the border is a poor first reference (its rotation is barely determined and
-            # each later view is aligned to it): wait for a whole view, then align the waiting ones to it.
+        back = oid in self.tracks and oid in self.live and t - self.live[oid].last_time > self.cfg.max_gap_s
+        if oid not in self.tracks or back:
+            # A sliver at the border is a poor view to start from (its rotation is barely determined and
+            # each later view is aligned to it): a new object, or one back after a gap, waits for a
+            # whole view; then the waiting views are aligned to it.
             waiting = self.pending.setdefault(oid, [])
             if touches_border(mask) and len(waiting) < self.cfg.border_wait:
                 waiting.append(_Pending(pyramid, mask, T_wc, tau, t, pixels))
                 return None
-            first = self._start(oid, inner, pyramid, depth, T_wc, tau, t, pixels)
-            self._backfill(oid, self.pending.pop(oid, []), pixels)
-            return first
+            if not back:
+                first = self._start(oid, inner, pyramid, depth, T_wc, tau, t, pixels)
+                self._backfill(oid, self.pending.pop(oid, []), pixels, self.live[oid].reference)
+                return first
         track, live = self.tracks[oid], self.live.get(oid)
         T_pred = self._predict(oid, inner, depth, T_wc, tau, t)
         if live is None or live.reference is None:  # resumed: no reference pyramid kept
             self._new_reference(oid, inner, pyramid, depth, T_wc, T_pred, tau, t)
             return ObjectObservation(oid, tau, t, T_pred, pixels, False, reidentified=reid, new_reference=True)
-        ref = pick_reference(live.references, camera_in_object(T_pred, T_wc), REUSE_ANGLE_DEG)
-        res = track_pyramids(ref.pyramid, pyramid, odometry_init(T_pred, T_wc, ref.C), self.odo)
+        if back:  # it may have turned by anything meanwhile: several rotations, the best alignment
+            ref, res = self._reacquire(track, live, pyramid, T_pred, T_wc)
+        else:
+            ref = pick_reference(live.references, camera_in_object(T_pred, T_wc), REUSE_ANGLE_DEG)
+            init = odometry_init(T_pred, T_wc, ref.C)
+            res = track_pyramids(ref.pyramid, pyramid, init, self.odo, prior=self._prior(init, ref.C, t - live.last_time))
         if not self._good(res):
-            if t - live.last_time > self.cfg.max_gap_s:  # back after a gap and lost: restart from the prediction
+            if back:  # no rotation aligns it: restart from the prediction (its own motion stays right)
+                self.pending.pop(oid, None)
                 self._new_reference(oid, inner, pyramid, depth, T_wc, T_pred, tau, t)
             return ObjectObservation(oid, tau, t, T_pred, pixels, False, reidentified=reid,
                                      overlap=res.overlap, inlier_ratio=res.inlier_ratio)
         T_wo = object_pose(T_wc, res.T_ref_cur, ref.C)
         track.add(tau, T_wo)
         self.stamps[oid][tau] = t
-        new_ref = res.overlap < self.cfg.keyframe_overlap and ref is live.reference
+        if back:
+            self._backfill(oid, self.pending.pop(oid, []), pixels, ref)
+        # Only a whole view becomes a reference: a cut-off one would hand its open rotation on.
+        new_ref = res.overlap < self.cfg.keyframe_overlap and ref is live.reference and not touches_border(mask)
         self._remember(oid, inner, depth, T_wc, T_wo, t, pyramid if new_ref else None, tau)
         return ObjectObservation(oid, tau, t, T_wo, pixels, True, reidentified=reid, new_reference=new_ref,
                                  overlap=res.overlap, inlier_ratio=res.inlier_ratio)
+
+    def _reacquire(self, track: ObjectTrack, live: _Live, pyramid: list[PyramidLevel], T_pred: torch.Tensor, T_wc: torch.Tensor):
+        """(reference, odometry result) of an object seen again after a gap: the prediction turned
+        about the object's centre in ``REACQUIRE_STEP_DEG`` steps about the camera's three axes, each
+        aligned at the coarsest level against the stored view nearest its side, the best refined at
+        every level (:mod:`tivne.slam.objects.reacquire`)."""
+        coarse = replace(self.odo, levels=1, max_iterations=REACQUIRE_ITERATIONS)
+        axes = T_wc[:3, :3].T.double()  # the camera's axes in the world
+        spin = spin_axis(track.observed_taus(), track.poses(), SPIN_BASELINE_S, MIN_SPIN_DEG)
+        if spin is not None:  # a spinning object most likely went on spinning about the same axis
+            axes = torch.cat([spin[None], axes])
+        candidates = []
+        for T in rotation_hypotheses(T_pred, axes, REACQUIRE_STEP_DEG):
+            ref = pick_reference(live.references, camera_in_object(T, T_wc), REUSE_ANGLE_DEG)
+            res = track_pyramids(ref.pyramid[-1:], pyramid[-1:], odometry_init(T, T_wc, ref.C), coarse)
+            candidates.append(Hypothesis(object_pose(T_wc, res.T_ref_cur, ref.C), res))
+        best = best_alignment(candidates)
+        T = best.T_wo if best is not None else T_pred
+        ref = pick_reference(live.references, camera_in_object(T, T_wc), REUSE_ANGLE_DEG)
+        return ref, track_pyramids(ref.pyramid, pyramid, odometry_init(T, T_wc, ref.C), self.odo)
+
+    def _prior(self, init: torch.Tensor, C_ref: torch.Tensor, dt: float) -> PosePrior | None:
+        """The motion prior (``objects.accel_sigma``, ``angular_accel_sigma``) on the odometry's
+        T_ref_cur around its constant-velocity ``init``: isotropic at the object's origin (the centre
+        of its first points), moved into the odometry's tangent at the reference camera."""
+        a_t, a_r = self.cfg.accel_sigma, self.cfg.angular_accel_sigma
+        if a_t <= 0 or a_r <= 0 or dt <= 0 or dt > self.cfg.max_gap_s:
+            return None
+        return PosePrior(init, centred_information(0.5 * a_t * dt * dt, 0.5 * a_r * dt * dt, invert_pose(C_ref)[:3, 3]))
 
     def _good(self, res: OdometryResult) -> bool:
         """The object odometry is usable: enough consistent pairs overlapping by MIN_OVERLAP (not
@@ -252,16 +306,22 @@ class ObjectTracker:
         self._remember(oid, mask, depth, T_wc, T_wo, t, pyramid, tau)
         return ObjectObservation(oid, tau, t, T_wo, pixels, True, new_track=True, new_reference=True)
 
-    def _backfill(self, oid: int, waiting: list[_Pending], pixels: int) -> None:
-        """The poses of a new track's waiting observations, newest first, each aligned to the track's
-        first reference (``pixels`` pixels) starting from the pose of the frame after it. Back to the
-        first one that fails or shows less than half as many pixels: a sliver leaves the rotation open."""
-        track, ref = self.tracks[oid], self.live[oid].reference
+    def _backfill(self, oid: int, waiting: list[_Pending], pixels: int, ref: _Reference) -> None:
+        """The poses of the observations that waited for a whole view (``pixels`` pixels, aligned to
+        ``ref``), newest first, each aligned to ``ref`` starting from the track carried back to it. Back to the first one that fails or shows less than half as many pixels: a sliver leaves
+        the rotation open."""
+        track = self.tracks[oid]
         for obs in reversed(waiting):
             if obs.pixels < pixels // 2:
                 break
-            T_pred = track.poses()[0]  # the earliest pose so far: one frame later than this observation
-            res = track_pyramids(ref.pyramid, obs.pyramid, odometry_init(T_pred, obs.T_wc, ref.C), self.odo)
+            # The poses after it (since the gap, if any) carried back at their velocity; the motion
+            # prior only once there is a velocity.
+            taus = track.observed_taus()
+            later = bisect.bisect_right(taus, obs.tau)
+            init = odometry_init(pose_on_track(taus[later:], track.poses()[later:], obs.tau), obs.T_wc, ref.C)
+            dt = self.stamps[oid][taus[later]] - obs.time
+            prior = self._prior(init, ref.C, dt) if len(taus) - later >= 2 else None
+            res = track_pyramids(ref.pyramid, obs.pyramid, init, self.odo, prior=prior)
             if not self._good(res):
                 break
             track.add(obs.tau, object_pose(obs.T_wc, res.T_ref_cur, ref.C))
@@ -273,6 +333,10 @@ class ObjectTracker:
             del self.pending[oid]
 
     def _new_reference(self, oid, mask, pyramid, depth, T_wc, T_wo, tau, t) -> None:
+        """Restart the object's tracking from this view at pose T_wo (a prediction): the pose is
+        recorded too, as the anchor the following poses are measured from (they are relative to it)."""
+        self.tracks[oid].add(tau, T_wo)
+        self.stamps[oid][tau] = t
         self._remember(oid, mask, depth, T_wc, T_wo, t, pyramid, tau)
 
     def _remember(self, oid, mask, depth, T_wc, T_wo, t, pyramid, tau) -> None:
@@ -295,7 +359,7 @@ class ObjectTracker:
         track, live = self.tracks[oid], self.live.get(oid)
         taus, poses = track.observed_taus(), track.poses()
         steady = len(taus) >= 2 and self.stamps[oid][taus[-1]] - self.stamps[oid][taus[-2]] <= self.cfg.max_gap_s
-        T = constant_velocity(taus, poses, tau) if steady else poses[-1].clone()
+        T = track.pose_at(tau) if steady else poses[-1].clone()
         if live is not None and t - live.last_time <= self.cfg.max_gap_s:
             return T
         if live is not None and len(live.points):

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from data_modules.poses import rotation_vector
 from data_modules.sensor import kinect_depth_sigma
 from tivne.config import OdometryConfig
 from tivne.geometry import invert_pose, project, se3_step
@@ -62,6 +63,22 @@ class OdometryResult:
     pose_std: float
     ok: bool
     information: torch.Tensor
+
+
+@dataclass(frozen=True)
+class PosePrior:
+    """A Gaussian prior on T_ref_cur: the pose ``T`` (4, 4) float64 it pulls towards and its
+    ``information`` (6, 6) float64 in the odometry's tangent (the left twist δ = (v, w) of
+    T_ref_cur ← exp(δ) T_ref_cur). Where the pixels constrain a direction well the prior hardly
+    moves it; where they do not (a symmetric object's spin, a blurred texture) the prior decides."""
+
+    T: torch.Tensor
+    information: torch.Tensor
+
+    def residual(self, T: torch.Tensor) -> torch.Tensor:
+        """(6,) float64 e = (t, ω) of T · T_prior⁻¹ (first order in the deviation, as the GN step)."""
+        D = T.double() @ invert_pose(self.T.double())
+        return torch.cat([D[:3, 3], rotation_vector(D[:3, :3])])
 
 
 @dataclass(frozen=True)
@@ -261,7 +278,8 @@ def _solve(H: torch.Tensor, g: torch.Tensor, damping: float) -> torch.Tensor:
     return -torch.linalg.solve(A, g)
 
 
-def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig):
+def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig,
+                 prior: PosePrior | None = None):
     """Gauss–Newton iterations at one level -> (T, iterations, converged, last linearisation).
 
     Converged: the update moves the image by < tol_pixels, or by < stall_pixels without shrinking to
@@ -274,7 +292,11 @@ def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tens
         lin = _linearise(ref, src, T, A, cfg)
         if lin.num_valid < cfg.min_correspondences:
             return T, it, False, lin
-        delta = _solve(lin.H, lin.g, cfg.damping)
+        H, g = lin.H, lin.g
+        if prior is not None:  # ½ eᵀ Λ e with e ≈ e0 + δ
+            Lam = prior.information.to(H)
+            H, g = H + Lam, g + Lam @ prior.residual(T).to(g)
+        delta = _solve(H, g, cfg.damping)
         T = se3_step(delta) @ T
         step = (float(delta[3:].norm()) + float(delta[:3].norm()) / z_mid) * f
         if step < cfg.tol_pixels or (step < cfg.stall_pixels and step > 0.5 * last):
@@ -290,6 +312,7 @@ def track_pyramids(
     config: OdometryConfig = OdometryConfig(),
     ref_rgb_depth: torch.Tensor | None = None,
     cur_rgb_depth: torch.Tensor | None = None,
+    prior: PosePrior | None = None,
 ) -> OdometryResult:
     """Estimate T_ref_cur (``c2w_cur = c2w_ref @ T_ref_cur``, colour camera frames) coarse to fine.
 
@@ -300,6 +323,8 @@ def track_pyramids(
         ref_rgb_depth, cur_rgb_depth: (4, 4) T_rgb_depth of each frame, mapping its depth camera frame
             (at the depth timestamp) into its colour camera frame (at the colour timestamp), for sensors
             whose depth and colour are not simultaneous (e.g. exp(ξ·Δt) from a velocity); None = simultaneous.
+        prior: an optional :class:`PosePrior` on T_ref_cur, added to every level's normal equations
+            (the result's ``information`` stays the pixels' own).
     Returns:
         :class:`OdometryResult`; on failure (no overlap, no depth) ``ok`` is False, never a silent identity.
     """
@@ -310,7 +335,7 @@ def track_pyramids(
     iterations, converged, lin, n_src = [], False, None, 0
     for level in reversed(range(min(len(ref), len(cur), config.levels))):
         src = _source(cur[level], config.max_points, cur_rgb_depth, config.min_depth)
-        T, its, converged, lin = _track_level(ref[level], src, T, A, config)
+        T, its, converged, lin = _track_level(ref[level], src, T, A, config, prior)
         iterations.append(its)
         n_src = src.points.shape[1]
     return _result(T, converged, lin, n_src, tuple(iterations), config)

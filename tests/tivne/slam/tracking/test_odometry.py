@@ -9,7 +9,7 @@ import torch
 
 from data_modules.synthetic import SyntheticSequence
 from tivne.geometry import backproject, invert_pose, se3_exp, se3_step
-from tivne.slam.tracking.odometry import OdometryConfig, normal_equations, rgbd_odometry
+from tivne.slam.tracking.odometry import OdometryConfig, PosePrior, frame_pyramid, normal_equations, rgbd_odometry, track_pyramids
 from tivne.slam.tracking.pyramid import build_pyramid, downsample_depth, downsample_K, downsample_mask, image_gradients, vertex_normals
 from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale
 
@@ -135,6 +135,23 @@ def test_degenerate_plane_is_flagged():
     rgb, depth = torch.full((H, W, 3), 0.5), torch.full((H, W), 2.0)
     res = rgbd_odometry(rgb, depth, rgb, depth, K)
     assert res.num_valid > 1000 and not res.ok and res.pose_std > 0.01 and res.condition > 1e6
+
+
+def test_a_pose_prior_decides_only_what_the_pixels_leave_open():
+    """On a textureless fronto-parallel wall the pixels fix depth (z) but not the slide along it (x):
+    a prior asking for both gets the slide and loses the depth to the pixels."""
+    K = torch.tensor([[128.0, 0, 79.5], [0, 128.0, 59.5], [0, 0, 1]])
+    rgb, depth = torch.full((H, W, 3), 0.5), torch.full((H, W), 2.0)
+    cfg = OdometryConfig()
+    wall = frame_pyramid(rgb, depth, K, cfg)
+    T_prior = torch.eye(4, dtype=torch.float64)
+    T_prior[:3, 3] = torch.tensor([0.01, 0.0, 0.05], dtype=torch.float64)
+    prior = PosePrior(T_prior, torch.eye(6, dtype=torch.float64) * 1e2)
+    res = track_pyramids(wall, wall, None, cfg, prior=prior)
+    t = res.T_ref_cur[:3, 3]
+    assert abs(float(t[0]) - 0.01) < 1e-4 and abs(float(t[2])) < 1e-3, t
+    free = track_pyramids(wall, wall, None, cfg)
+    assert float(free.T_ref_cur[:3, 3].norm()) < 1e-6  # without the prior nothing moves it
 
 
 def test_robust_weights_at_known_residuals():
