@@ -25,7 +25,7 @@ camera's): ``colour_camera=[fx, fy, cx, cy]`` gives the colour camera's intrinsi
 is then resampled onto the depth camera's pixels (through the colour camera's distortion, if any), so
 ``Frame.rgb`` and ``Frame.depth`` share pixels as the data contract requires. The model is the
 homography K_colour K⁻¹ (the two cameras' centres taken as one: a baseline's parallax at the scene's
-usual depth is absorbed by the principal point). ``python -m tivne.calibrate`` estimates it from the
+usual depth is absorbed by the principal point). ``python -m data_modules.inspect ... colour_camera=true`` estimates it from the
 frames.
 """
 

@@ -20,7 +20,6 @@ from tivne.field.networks import TimeVaryingField
 from tivne.field.objects import ObjectField, ObjectPoses, ObjectSlot
 
 
-
 class RecordedTrack:
     """A track rebuilt from its samples: (N,) τ increasing, (N, 4, 4) object-to-world, box (2, 3)
     or None. Between samples SLERP + lerp; outside them the end pose continued at the end's velocity,
