@@ -127,6 +127,12 @@ def _grad_only_if_needed(x: torch.Tensor) -> torch.set_grad_enabled:
     return torch.set_grad_enabled(torch.is_grad_enabled() and x.requires_grad)
 
 
+def skew(t: torch.Tensor) -> torch.Tensor:
+    """(3,) -> (3, 3) with skew(t) @ x = t × x."""
+    z = torch.zeros((), dtype=t.dtype, device=t.device)
+    return torch.stack([torch.stack([z, -t[2], t[1]]), torch.stack([t[2], z, -t[0]]), torch.stack([-t[1], t[0], z])])
+
+
 def se3_exp(xi: torch.Tensor) -> torch.Tensor:
     """SE(3) exponential map.
 

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from tivne.geometry import skew
 from tivne.settings import ConfigError
 
 GRAPH_MISSING = "backend.method=graph needs gtsam, which is not installed: pip install 'tivne[graph]' (or pip install gtsam)"
@@ -29,12 +30,6 @@ def require_gtsam():
     except ImportError:
         raise ConfigError(GRAPH_MISSING) from None
     return gtsam
-
-
-def skew(t: torch.Tensor) -> torch.Tensor:
-    """(3,) -> (3, 3) with skew(t) @ x = t × x."""
-    z = torch.zeros((), dtype=t.dtype)
-    return torch.stack([torch.stack([z, -t[2], t[1]]), torch.stack([t[2], z, -t[0]]), torch.stack([-t[1], t[0], z])])
 
 
 def adjoint_vw(T: torch.Tensor) -> torch.Tensor:

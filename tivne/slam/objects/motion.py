@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import torch
 
-from tivne.geometry import invert_pose, orthonormalize_pose, se3_exp, se3_log
+from tivne.geometry import invert_pose, orthonormalize_pose, se3_exp, se3_log, skew
 
 
 def camera_in_object(T_wo: torch.Tensor, T_wc: torch.Tensor) -> torch.Tensor:
@@ -76,7 +76,6 @@ def interpolate_se3(A: torch.Tensor, B: torch.Tensor, s: float) -> torch.Tensor:
     return A @ se3_exp(float(s) * se3_log((invert_pose(A) @ B)[None])[0])
 
 
-
 def centred_information(sigma_t: float, sigma_r: float, centre: torch.Tensor) -> torch.Tensor:
     """(6, 6) float64 information of an isotropic pose prior (σ_t metres, σ_r radians) on the
     motion of a body at ``centre`` (3,), in the tangent of a left twist δ = (v, w) about the origin.
@@ -85,11 +84,7 @@ def centred_information(sigma_t: float, sigma_r: float, centre: torch.Tensor) ->
     Λ_δ = Mᵀ Λ_ε M with M = [[I, −[c]×], [0, I]]: a spin about the body's centre is penalised
     as a rotation only, not as the swing of the far-away origin about it.
     """
-    c = centre.double()
-    cx = torch.zeros(3, 3, dtype=torch.float64)
-    cx[0, 1], cx[0, 2], cx[1, 2] = -c[2], c[1], -c[0]
-    cx = cx - cx.T
     M = torch.eye(6, dtype=torch.float64)
-    M[:3, 3:] = -cx
+    M[:3, 3:] = -skew(centre.double())
     lam = torch.diag(torch.tensor([1.0 / sigma_t**2] * 3 + [1.0 / sigma_r**2] * 3, dtype=torch.float64))
     return M.T @ lam @ M

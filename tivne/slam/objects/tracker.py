@@ -55,11 +55,10 @@ MAX_REFERENCES = 12
 # A keyframe is reused when it saw the object from within this angle of the predicted view.
 REUSE_ANGLE_DEG = 12.0
 # Re-acquisition after a gap: rotation hypotheses every this many degrees about each camera axis,
-# each aligned with this many Gauss–Newton iterations at the coarsest level.
+# each aligned with this many Gauss–Newton iterations at the coarsest level; and about the axis the
+# object last turned about, when it turned by at least MIN_SPIN_DEG over its last SPIN_BASELINE_S.
 REACQUIRE_STEP_DEG = 30.0
 REACQUIRE_ITERATIONS = 8
-# ... and about the axis the object last turned about, when it turned by at least MIN_SPIN_DEG over
-# its last SPIN_BASELINE_S of observations.
 SPIN_BASELINE_S = 0.3
 MIN_SPIN_DEG = 5.0
 
@@ -260,7 +259,7 @@ class ObjectTracker:
 
     def _reacquire(self, track: ObjectTrack, live: _Live, pyramid: list[PyramidLevel], T_pred: torch.Tensor, T_wc: torch.Tensor):
         """(reference, odometry result) of an object seen again after a gap: the prediction turned
-        about the object's centre in ``REACQUIRE_STEP_DEG`` steps about the camera's three axes, each
+        about the object's origin in ``REACQUIRE_STEP_DEG`` steps about the camera's three axes, each
         aligned at the coarsest level against the stored view nearest its side, the best refined at
         every level (:mod:`tivne.slam.objects.reacquire`)."""
         coarse = replace(self.odo, levels=1, max_iterations=REACQUIRE_ITERATIONS)
@@ -308,8 +307,9 @@ class ObjectTracker:
 
     def _backfill(self, oid: int, waiting: list[_Pending], pixels: int, ref: _Reference) -> None:
         """The poses of the observations that waited for a whole view (``pixels`` pixels, aligned to
-        ``ref``), newest first, each aligned to ``ref`` starting from the track carried back to it. Back to the first one that fails or shows less than half as many pixels: a sliver leaves
-        the rotation open."""
+        ``ref``), newest first, each aligned to ``ref`` starting from the track carried back to it.
+        Back to the first one that fails or shows less than half as many pixels: a sliver leaves the
+        rotation open."""
         track = self.tracks[oid]
         for obs in reversed(waiting):
             if obs.pixels < pixels // 2:
