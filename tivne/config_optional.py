@@ -63,8 +63,9 @@ class ObjectsConfig(Settings):
     instances are ignored. levels: odometry pyramid levels on an object's pixels (objects are
     small: the coarsest level must keep pixels). depth_smoothing: radius (pixels) of the mean filter
     over the object's own depths before its odometry (0 = off; axial noise biases the object's
-    rotation towards zero, the errors-in-variables effect, on few pixels). keyframe_overlap: a new reference observation when
-    the odometry's overlap with the current one falls below this. min_iou: a segment continues a
+    rotation towards zero, the errors-in-variables effect, on few pixels). keyframe_overlap, keyframe_inliers: a new reference observation
+    when the odometry's overlap with the current one, or its inlier ratio, falls below these (a
+    turning object's faces go oblique and its shading changes long before the overlap drops). min_iou: a segment continues a
     track when its overlap with the track's predicted mask reaches this. reid_distance: a segment
     re-identifies a lost track whose predicted centre is this close (m) and whose size agrees
     within reid_size_ratio. max_gap_s: a track unseen longer is lost (then only re-identified).
@@ -85,6 +86,7 @@ class ObjectsConfig(Settings):
     levels: int = setting(2, ge=1, le=4)
     depth_smoothing: int = setting(1, ge=0, le=4)
     keyframe_overlap: float = setting(0.85, ge=0, le=1)
+    keyframe_inliers: float = setting(0.5, ge=0, le=1)  # as the camera's tracking.reference_min_inliers
     min_iou: float = setting(0.2, gt=0, le=1)
     reid_distance: float = setting(0.25, gt=0)
     reid_size_ratio: float = setting(1.6, ge=1)

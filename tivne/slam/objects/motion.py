@@ -49,26 +49,6 @@ def odometry_init(T_wo_pred: torch.Tensor, T_wc_cur: torch.Tensor, C_ref: torch.
     return invert_pose(C_ref.double()) @ camera_in_object(T_wo_pred, T_wc_cur)
 
 
-def constant_velocity(taus: list[float], poses: torch.Tensor, tau: float, max_gap: float | None = None) -> torch.Tensor:
-    """Predicted object-to-world pose (4, 4) at ``tau`` from the last two observations.
-
-    The world-frame motion of the last step, Δ = T_last · T_prev⁻¹, is continued at the same rate:
-    T̂ = exp((τ − τ_last)/(τ_last − τ_prev) · log Δ) · T_last. One observation, or a last step or a
-    gap to ``tau`` longer than ``max_gap``: the last pose is held (a velocity that old is a guess).
-
-    Args:
-        taus: increasing observation times (at least one). poses: (N, 4, 4) at ``taus``.
-    """
-    last = poses[-1].double()
-    if len(taus) < 2:
-        return last.clone()
-    step, ahead = taus[-1] - taus[-2], tau - taus[-1]
-    if step <= 0 or (max_gap is not None and (step > max_gap or ahead > max_gap)):
-        return last.clone()
-    xi = se3_log((last @ invert_pose(poses[-2].double()))[None])[0]
-    return orthonormalize_pose(se3_exp(xi * (ahead / step)) @ last)
-
-
 def interpolate_se3(A: torch.Tensor, B: torch.Tensor, s: float) -> torch.Tensor:
     """The pose (4, 4) a fraction ``s`` in [0, 1] along the geodesic from A to B (body frame):
     A · exp(s · log(A⁻¹ B)); s = 0 gives A, s = 1 gives B."""

@@ -39,8 +39,9 @@ from tivne.slam.objects.instances import (
     touches_border,
     world_points,
 )
-from tivne.slam.objects.motion import camera_in_object, centred_information, constant_velocity, object_pose, odometry_init
+from tivne.slam.objects.motion import camera_in_object, centred_information, object_pose, odometry_init
 from tivne.slam.objects.reacquire import Hypothesis, best_alignment, rotation_hypotheses, spin_axis
+from tivne.slam.objects.references import Reference, pick_reference, shows_enough
 from tivne.slam.objects.track import ObjectTrack
 from tivne.slam.outputs import RunDir
 from tivne.slam.tracking.odometry import OdometryResult, PosePrior, frame_pyramid, track_pyramids
@@ -87,15 +88,6 @@ class ObjectObservation:
 
 
 @dataclass
-class _Reference:
-    """An object's keyframe observation: its pyramid (object pixels only) and camera-to-object pose."""
-
-    pyramid: list[PyramidLevel]
-    C: torch.Tensor
-    tau: float
-
-
-@dataclass
 class _Pending:
     """A new object's observation while the image border cuts it off (before its track starts)."""
 
@@ -112,32 +104,14 @@ class _Live:
     """Per-object tracking state: its keyframe observations (oldest first, at most
     ``MAX_REFERENCES``), the last observation's object-frame points (M, 3), their size (m) and time (s)."""
 
-    references: list[_Reference]
+    references: list[Reference]
     points: torch.Tensor
     size: float
     last_time: float
 
     @property
-    def reference(self) -> _Reference | None:
+    def reference(self) -> Reference | None:
         return self.references[-1] if self.references else None
-
-
-def view_direction(C: torch.Tensor) -> torch.Tensor:
-    """(3,) unit direction from the object origin to the camera of camera-to-object pose C (4, 4)."""
-    return C[:3, 3] / C[:3, 3].norm().clamp_min(1e-9)
-
-
-def pick_reference(references: list[_Reference], C_pred: torch.Tensor, max_angle_deg: float) -> _Reference:
-    """The oldest keyframe that saw the object from within ``max_angle_deg`` of the predicted view
-    and from a distance within 25 %, else the newest: tracking against the oldest usable view, not
-    a chain of the latest ones, keeps the object's drift from growing with every new keyframe."""
-    d_pred, dist_pred = view_direction(C_pred), float(C_pred[:3, 3].norm())
-    cos_max = float(np.cos(np.radians(max_angle_deg)))
-    for ref in references[:-1]:
-        ratio = float(ref.C[:3, 3].norm()) / max(dist_pred, 1e-9)
-        if float(view_direction(ref.C) @ d_pred) >= cos_max and 0.8 <= ratio <= 1.25:
-            return ref
-    return references[-1]
 
 
 class ObjectTracker:
@@ -241,7 +215,10 @@ class ObjectTracker:
             init = odometry_init(T_pred, T_wc, ref.C)
             res = track_pyramids(ref.pyramid, pyramid, init, self.odo, prior=self._prior(init, ref.C, t - live.last_time))
         if not self._good(res):
-            if back:  # no rotation aligns it: restart from the prediction (its own motion stays right)
+            if back and len(self.pending.get(oid, [])) < self.cfg.border_wait:  # no anchor from one poor view: try the next
+                self.pending.setdefault(oid, []).append(_Pending(pyramid, mask, T_wc, tau, t, pixels))
+                return None
+            if back:  # no rotation aligns a whole view: restart from the prediction (its own motion stays right)
                 self.pending.pop(oid, None)
                 self._new_reference(oid, inner, pyramid, depth, T_wc, T_pred, tau, t)
             return ObjectObservation(oid, tau, t, T_pred, pixels, False, reidentified=reid,
@@ -251,8 +228,10 @@ class ObjectTracker:
         self.stamps[oid][tau] = t
         if back:
             self._backfill(oid, self.pending.pop(oid, []), pixels, ref)
-        # Only a whole view becomes a reference: a cut-off one would hand its open rotation on.
-        new_ref = res.overlap < self.cfg.keyframe_overlap and ref is live.reference and not touches_border(mask)
+        # A view that shows less than half of what its reference did at the same distance (cut by the
+        # border, occluded) does not become a reference: it would hand its open rotation on.
+        stale = res.overlap < self.cfg.keyframe_overlap or res.inlier_ratio < self.cfg.keyframe_inliers
+        new_ref = stale and ref is live.reference and shows_enough(int(inner.sum()), camera_in_object(T_wo, T_wc), ref)
         self._remember(oid, inner, depth, T_wc, T_wo, t, pyramid if new_ref else None, tau)
         return ObjectObservation(oid, tau, t, T_wo, pixels, True, reidentified=reid, new_reference=new_ref,
                                  overlap=res.overlap, inlier_ratio=res.inlier_ratio)
@@ -305,7 +284,7 @@ class ObjectTracker:
         self._remember(oid, mask, depth, T_wc, T_wo, t, pyramid, tau)
         return ObjectObservation(oid, tau, t, T_wo, pixels, True, new_track=True, new_reference=True)
 
-    def _backfill(self, oid: int, waiting: list[_Pending], pixels: int, ref: _Reference) -> None:
+    def _backfill(self, oid: int, waiting: list[_Pending], pixels: int, ref: Reference) -> None:
         """The poses of the observations that waited for a whole view (``pixels`` pixels, aligned to
         ``ref``), newest first, each aligned to ``ref`` starting from the track carried back to it.
         Back to the first one that fails or shows less than half as many pixels: a sliver leaves the
@@ -349,7 +328,7 @@ class ObjectTracker:
             self.tracks[oid].grow_box(torch.stack([lo, hi]))
         refs = list(self.live[oid].references) if oid in self.live else []
         if pyramid is not None:
-            refs = (refs + [_Reference(pyramid, C, tau)])[-MAX_REFERENCES:]
+            refs = (refs + [Reference(pyramid, C, tau, int(mask.sum()))])[-MAX_REFERENCES:]
         self.live[oid] = _Live(refs, pts, extent(pts), t)
 
     def _predict(self, oid: int, mask: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float) -> torch.Tensor:
@@ -404,8 +383,8 @@ class ObjectTracker:
 
     def _reidentify(self, seg: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, busy: set[int]) -> int | None:
         """The lost track that puts its points' centre nearest the segment's centre, held at its last
-        pose or carried on at its last velocity (whichever is nearer), within ``reid_distance`` and
-        with a size within ``reid_size_ratio``; None if none."""
+        pose or carried on at its end velocity (``pose_at``; whichever is nearer), within
+        ``reid_distance`` and with a size within ``reid_size_ratio``; None if none."""
         pts = world_points(seg, depth, self.K, T_wc)
         if len(pts) == 0:
             return None
@@ -414,8 +393,7 @@ class ObjectTracker:
             if k in busy or not len(lv.points):
                 continue
             ratio = max(size, lv.size) / max(min(size, lv.size), 1e-6)
-            taus, poses = self.tracks[k].observed_taus(), self.tracks[k].poses()
-            ends = [transform_points(T, lv.points).mean(0) for T in (poses[-1], constant_velocity(taus, poses, tau))]
+            ends = [transform_points(T, lv.points).mean(0) for T in (self.tracks[k].poses()[-1], self.tracks[k].pose_at(tau))]
             d = min(float((e - centre).norm()) for e in ends)
             if d <= self.cfg.reid_distance and ratio <= self.cfg.reid_size_ratio and (best is None or d < best[0]):
                 best = (d, k)

@@ -151,3 +151,31 @@ def test_an_object_entering_at_the_border_waits_for_a_whole_view_then_gets_its_e
     assert started == first_whole and track.observed_taus()[0] < float(crossing.timestamps[first_whole])
     err = object_trajectory_error(track.poses(), _gt(crossing, "near", track.observed_taus()))
     assert err.ate_max_m < 0.01 and err.rot_max_deg < 2.0, err
+
+
+def _second_view(cube, keep_columns: float, **config):
+    """The cube object's observation in frame 4 (after frame 0 started its track; 95 % of its pairs
+    are inliers, 98.5 % overlap), its instance mask cut to the left ``keep_columns`` share of its
+    columns (an occluder hiding the rest)."""
+    tracker = ObjectTracker(ObjectsConfig(track=True, min_pixels=16, border_wait=0, **config), cube.intrinsics.K())
+    for i in (0, 4):
+        f = cube.render(i, noise=False)
+        ids = f.instances.clone()
+        if i == 4:
+            cols = torch.nonzero((ids == 1).any(0)).flatten()
+            ids[:, int(cols[0]) + max(1, int(keep_columns * len(cols))):] = 0
+        (obs,) = tracker.step(f, cube.camera_pose(i), float(f.timestamp), ids)
+    return obs
+
+
+@pytest.mark.parametrize("overlap, inliers, whole_becomes_reference", [(0.0, 1.0, True), (0.0, 0.0, False), (1.0, 0.0, True)])
+def test_a_reference_is_renewed_when_overlap_or_inliers_fall(cube, overlap, inliers, whole_becomes_reference):
+    obs = _second_view(cube, 1.0, keyframe_overlap=overlap, keyframe_inliers=inliers)
+    assert obs.ok and obs.new_reference == whole_becomes_reference
+
+
+def test_an_occluded_sliver_never_becomes_a_reference(cube):
+    """A view showing a quarter of what the reference did (not cut by the border: occluded) is
+    aligned but does not become the reference, although the reference is due (every threshold at 1)."""
+    obs = _second_view(cube, 0.25, keyframe_overlap=1.0, keyframe_inliers=1.0)
+    assert obs.ok and not obs.new_reference
