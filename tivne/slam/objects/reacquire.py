@@ -5,8 +5,11 @@ later), so the constant-velocity prediction's rotation is a guess and Gauss–Ne
 the wrong basin as often as not. Its position is known well enough (the prediction moved onto the
 centre of what is seen now), so :func:`rotation_hypotheses` turns the prediction about that centre
 in steps about three axes, each hypothesis is aligned at the coarsest pyramid level against the
-stored view that saw the object from the hypothesised side, and :func:`best_alignment` keeps the one
-that explains the pixels best. The caller refines it at every level.
+stored view that saw the object from the hypothesised side, and :func:`ranked_alignments` orders
+those that explain the pixels best. The caller refines the first few at every level and keeps the
+best of those: the coarsest level prunes, the finest level's texture decides (a ball's or a
+cylinder's turns fit its geometry alike; only the texture tells them apart, and at the coarsest
+level it is a blur).
 """
 
 from __future__ import annotations
@@ -46,20 +49,26 @@ def rotation_hypotheses(T_wo: torch.Tensor, axes: torch.Tensor, step_deg: float)
     return out
 
 
-def best_alignment(candidates: list[Hypothesis], min_share: float = 0.8) -> Hypothesis | None:
-    """The hypothesis that explains the pixels best: among the alignments whose overlap × inlier
-    ratio reaches ``min_share`` of the best one's, the lowest photometric RMS (the texture tells
-    apart what geometry cannot, e.g. a box turned by 180°); without colour, the largest overlap ×
-    inlier ratio. None when no alignment ran."""
+def ranked_alignments(candidates: list[Hypothesis], min_share: float = 0.8) -> list[Hypothesis]:
+    """The hypotheses that explain the pixels best, best first: the alignments whose overlap ×
+    inlier ratio reaches ``min_share`` of the best one's, by photometric RMS (the texture tells
+    apart what geometry cannot, e.g. a box turned by 180°); without colour, by overlap × inlier
+    ratio. Empty when no alignment ran."""
     done = [h for h in candidates if h.result is not None and h.result.num_valid > 0]
     if not done:
-        return None
+        return []
     support = [h.result.overlap * h.result.inlier_ratio for h in done]
     top = max(support)
-    close = [h for h, s in zip(done, support) if s >= min_share * top]
-    if all(math.isnan(h.result.rms_photometric) for h in close):
-        return done[support.index(top)]
-    return min(close, key=lambda h: h.result.rms_photometric if not math.isnan(h.result.rms_photometric) else math.inf)
+    close = [(h, s) for h, s in zip(done, support) if s >= min_share * top]
+    if all(math.isnan(h.result.rms_photometric) for h, _ in close):
+        return [h for h, _ in sorted(close, key=lambda hs: -hs[1])]
+    return [h for h, _ in sorted(close, key=lambda hs: hs[0].result.rms_photometric if not math.isnan(hs[0].result.rms_photometric) else math.inf)]
+
+
+def best_alignment(candidates: list[Hypothesis], min_share: float = 0.8) -> Hypothesis | None:
+    """The first of :func:`ranked_alignments`, or None when no alignment ran."""
+    ranked = ranked_alignments(candidates, min_share)
+    return ranked[0] if ranked else None
 
 
 def spin_axis(taus: list[float], poses: torch.Tensor, baseline: float, min_deg: float) -> torch.Tensor | None:

@@ -40,9 +40,9 @@ def pick_reference(references: list[Reference], C_pred: torch.Tensor, max_angle_
     return references[-1]
 
 
-def shows_enough(pixels: int, C: torch.Tensor, ref: Reference, share: float = 0.5) -> bool:
-    """Whether a view of ``pixels`` object pixels from camera-to-object pose C (4, 4) shows at least
-    ``share`` of what ``ref`` showed, scaled to the view's distance (an object twice as far covers a
-    quarter of the pixels): less means it is cut by the border or occluded."""
-    ratio = float(ref.C[:3, 3].norm()) / max(float(C[:3, 3].norm()), 1e-9)
+def shows_enough(pixels: int, distance: float, ref: Reference, share: float = 0.5) -> bool:
+    """Whether a view of ``pixels`` object pixels from ``distance`` (m) shows at least ``share`` of
+    what ``ref`` showed, scaled to that distance (an object twice as far covers a quarter of the
+    pixels): less means it is cut by the border or occluded."""
+    ratio = float(ref.C[:3, 3].norm()) / max(distance, 1e-9)
     return pixels >= share * ref.pixels * ratio**2

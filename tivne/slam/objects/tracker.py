@@ -40,7 +40,7 @@ from tivne.slam.objects.instances import (
     world_points,
 )
 from tivne.slam.objects.motion import camera_in_object, centred_information, object_pose, odometry_init
-from tivne.slam.objects.reacquire import Hypothesis, best_alignment, rotation_hypotheses, spin_axis
+from tivne.slam.objects.reacquire import Hypothesis, best_alignment, ranked_alignments, rotation_hypotheses, spin_axis
 from tivne.slam.objects.references import Reference, pick_reference, shows_enough
 from tivne.slam.objects.track import ObjectTrack
 from tivne.slam.outputs import RunDir
@@ -60,6 +60,7 @@ REUSE_ANGLE_DEG = 12.0
 # object last turned about, when it turned by at least MIN_SPIN_DEG over its last SPIN_BASELINE_S.
 REACQUIRE_STEP_DEG = 30.0
 REACQUIRE_ITERATIONS = 8
+REACQUIRE_REFINED = 4  # the best coarse alignments refined at every level, the best of them kept
 SPIN_BASELINE_S = 0.3
 MIN_SPIN_DEG = 5.0
 
@@ -196,7 +197,10 @@ class ObjectTracker:
             # each later view is aligned to it): a new object, or one back after a gap, waits for a
             # whole view; then the waiting views are aligned to it.
             waiting = self.pending.setdefault(oid, [])
-            if touches_border(mask) and len(waiting) < self.cfg.border_wait:
+            live = self.live.get(oid)  # one coming back also waits while hidden in part (occluded)
+            hidden = back and live is not None and live.reference is not None and not shows_enough(
+                int(inner.sum()), float(depth[inner & (depth > 0)].median()), live.reference)
+            if (touches_border(mask) or hidden) and len(waiting) < self.cfg.border_wait:
                 waiting.append(_Pending(pyramid, mask, T_wc, tau, t, pixels))
                 return None
             if not back:
@@ -231,7 +235,7 @@ class ObjectTracker:
         # A view that shows less than half of what its reference did at the same distance (cut by the
         # border, occluded) does not become a reference: it would hand its open rotation on.
         stale = res.overlap < self.cfg.keyframe_overlap or res.inlier_ratio < self.cfg.keyframe_inliers
-        new_ref = stale and ref is live.reference and shows_enough(int(inner.sum()), camera_in_object(T_wo, T_wc), ref)
+        new_ref = stale and ref is live.reference and shows_enough(int(inner.sum()), float(camera_in_object(T_wo, T_wc)[:3, 3].norm()), ref)
         self._remember(oid, inner, depth, T_wc, T_wo, t, pyramid if new_ref else None, tau)
         return ObjectObservation(oid, tau, t, T_wo, pixels, True, reidentified=reid, new_reference=new_ref,
                                  overlap=res.overlap, inlier_ratio=res.inlier_ratio)
@@ -239,8 +243,8 @@ class ObjectTracker:
     def _reacquire(self, track: ObjectTrack, live: _Live, pyramid: list[PyramidLevel], T_pred: torch.Tensor, T_wc: torch.Tensor):
         """(reference, odometry result) of an object seen again after a gap: the prediction turned
         about the object's origin in ``REACQUIRE_STEP_DEG`` steps about the camera's three axes, each
-        aligned at the coarsest level against the stored view nearest its side, the best refined at
-        every level (:mod:`tivne.slam.objects.reacquire`)."""
+        aligned at the coarsest level against the stored view nearest its side, the best
+        ``REACQUIRE_REFINED`` refined at every level, the best of those kept (:mod:`tivne.slam.objects.reacquire`)."""
         coarse = replace(self.odo, levels=1, max_iterations=REACQUIRE_ITERATIONS)
         axes = T_wc[:3, :3].T.double()  # the camera's axes in the world
         spin = spin_axis(track.observed_taus(), track.poses(), SPIN_BASELINE_S, MIN_SPIN_DEG)
@@ -251,10 +255,13 @@ class ObjectTracker:
             ref = pick_reference(live.references, camera_in_object(T, T_wc), REUSE_ANGLE_DEG)
             res = track_pyramids(ref.pyramid[-1:], pyramid[-1:], odometry_init(T, T_wc, ref.C), coarse)
             candidates.append(Hypothesis(object_pose(T_wc, res.T_ref_cur, ref.C), res))
-        best = best_alignment(candidates)
-        T = best.T_wo if best is not None else T_pred
-        ref = pick_reference(live.references, camera_in_object(T, T_wc), REUSE_ANGLE_DEG)
-        return ref, track_pyramids(ref.pyramid, pyramid, odometry_init(T, T_wc, ref.C), self.odo)
+        tops = ranked_alignments(candidates)[:REACQUIRE_REFINED] or [Hypothesis(T_pred)]
+        refs = [pick_reference(live.references, camera_in_object(h.T_wo, T_wc), REUSE_ANGLE_DEG) for h in tops]
+        refined = [Hypothesis(h.T_wo, track_pyramids(r.pyramid, pyramid, odometry_init(h.T_wo, T_wc, r.C), self.odo))
+                   for h, r in zip(tops, refs)]
+        best = best_alignment(refined)
+        k = next((i for i, h in enumerate(refined) if h is best), 0)
+        return refs[k], refined[k].result
 
     def _prior(self, init: torch.Tensor, C_ref: torch.Tensor, dt: float) -> PosePrior | None:
         """The motion prior (``objects.accel_sigma``, ``angular_accel_sigma``) on the odometry's

@@ -19,12 +19,12 @@ def _reference(position, pixels=1000, tau=0.0) -> Reference:
 
 def test_a_view_shows_enough_by_pixels_scaled_to_its_distance():
     ref = _reference((0.0, 0.0, 1.0), pixels=1000)
-    assert shows_enough(1000, _camera_at((0.0, 0.0, 1.0)), ref)
-    assert shows_enough(500, _camera_at((0.0, 0.0, 1.0)), ref)
-    assert not shows_enough(499, _camera_at((0.0, 0.0, 1.0)), ref)  # occluded or cut by the border
+    assert shows_enough(1000, 1.0, ref)
+    assert shows_enough(500, 1.0, ref)
+    assert not shows_enough(499, 1.0, ref)  # occluded or cut by the border
     # Twice as far away an object covers a quarter of the pixels: 250 shows all of it, 100 does not.
-    assert shows_enough(250, _camera_at((0.0, 2.0, 0.0)), ref)
-    assert not shows_enough(100, _camera_at((0.0, 2.0, 0.0)), ref)
+    assert shows_enough(250, 2.0, ref)
+    assert not shows_enough(100, 2.0, ref)
 
 
 def test_the_oldest_reference_from_a_similar_view_is_picked_else_the_newest():
