@@ -222,7 +222,11 @@ class MappingConfig(Settings):
     Adam steps per round added noise here: 2.6 vs 1.0 cm peak error over 40 frames). The final pass:
     after the sequence, steps over the whole keyframe set (windows of final_window keyframes, poses
     fixed), because the online window rarely revisits early and middle times: final_share of the
-    steps mapping took online, at most final_iters (so it stays a small part of the run; 0 = off)."""
+    steps mapping took online, at most final_iters (so it stays a small part of the run; 0 = off).
+    Adaptive rounds (settle_share > 0): a round whose current frame the map already explains (at its
+    first step, settle_share of the current frame's rays render a depth within settle_sigmas σ(z) of
+    the measured one, σ the Kinect depth noise at that depth) stops after settle_iters steps; a frame that shows a new region or a moving
+    object gets the whole round."""
 
     section: ClassVar[str] = "mapping"
     iters: int = setting(20, ge=1)
@@ -241,6 +245,9 @@ class MappingConfig(Settings):
     final_iters: int = setting(300, ge=0)
     final_share: float = setting(0.1, ge=0)
     final_window: int = setting(8, ge=1)
+    settle_share: float = setting(0.0, ge=0, le=1)
+    settle_sigmas: float = setting(3.0, gt=0)
+    settle_iters: int = setting(5, ge=1)
 
 
 @dataclass(frozen=True)

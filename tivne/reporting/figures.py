@@ -23,7 +23,7 @@ CURVE_PANELS: tuple[tuple[str, tuple[str, ...], bool], ...] = (
     ("seconds per frame", ("perf/s_per_frame",), False),
     ("voxels", ("map/voxels",), False),
 )
-SKIPPED_CURVES = ("map/loss_skipped_steps",)
+SKIPPED_CURVES = ("map/skipped_steps", "map/steps", "map/explained")
 
 
 def save_figure(fig: Figure, path: Path) -> Path:

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import torch
 
+from data_modules.sensor import kinect_depth_sigma
 from tivne.config import LossWeights, MappingConfig, RenderConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.geometry import orthonormalize_pose, se3_exp
@@ -30,7 +31,8 @@ class MapRound:
 
     def scalars(self) -> dict[str, float]:
         """Log scalars (TensorBoard ``map/...``)."""
-        out = {f"loss_{n}" if n != "total" else "loss": v for n, v in self.terms.items()}
+        counts = ("steps", "skipped_steps", "explained")  # not loss terms: logged under their own names
+        out = {n if n in counts else f"loss_{n}" if n != "total" else "loss": v for n, v in self.terms.items()}
         return out | {"window": float(len(self.window))}
 
 
@@ -89,9 +91,9 @@ class Mapper:
             extra = min(self.owed, self.cfg.iters)
             iters, self.owed = self.cfg.iters + extra, self.owed - extra
         start = time.perf_counter()
-        poses, terms = self.run(views, fixed, iters, K, generator)
+        poses, terms = self.run(views, fixed, iters, K, generator, settle=not first and self.cfg.settle_share > 0)
         self.seconds += time.perf_counter() - start
-        self.iterations += iters
+        self.iterations += int(terms["steps"])
         moved = {v.frame_id: p for v, p, f in zip(views, poses, fixed) if not f and self.cfg.optimize_poses}
         return MapRound(tuple(v.frame_id for v in views), moved, terms)
 
@@ -103,11 +105,14 @@ class Mapper:
         K: torch.Tensor,
         generator: torch.Generator | None = None,
         current_share: float | None = None,
+        settle: bool = False,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         """Optimise the map on ``views`` (views[0] is the current frame, with ``current_share`` of
-        the rays; default the config's).
+        the rays; default the config's). ``settle``: stop after ``settle_iters`` steps when the first
+        step finds the current frame explained (:func:`explained_share`, the config's settle_*).
 
-        Returns the refined (V, 4, 4) poses (unchanged where ``fixed``) and the last step's loss terms.
+        Returns the refined (V, 4, 4) poses (unchanged where ``fixed``) and the last step's loss terms
+        with ``steps`` (the steps run), ``skipped_steps`` and, when settling, ``explained``.
         """
         cfg = self.cfg
         base = torch.stack([v.pose.detach() for v in views])
@@ -120,12 +125,18 @@ class Mapper:
         n_other = (cfg.rays - n_cur) // max(len(views) - 1, 1)
         counts = [n_cur] + [n_other] * (len(views) - 1)
         terms: dict[str, torch.Tensor] = {}
-        skipped = 0
-        self.steps += iters
-        for _ in range(iters):
+        skipped = step = 0
+        explained = float("nan")
+        while step < iters:
+            step += 1
             poses = base @ se3_exp(pose_delta * movable) if pose_opt is not None else base
             pixels = [self.sampler(pool, n, generator) for pool, n in zip(pools, counts)]
             batch = render_pixels(self.field, views, pixels, poses, K, self.render, True, generator)
+            if settle and step == 1:
+                n = len(pixels[0])
+                explained = explained_share(batch.rendered.depth[:n].detach(), batch.rays.depth[:n], cfg.settle_sigmas)
+                if explained >= cfg.settle_share:
+                    iters = min(iters, cfg.settle_iters)
             loss, terms = slam_loss(batch, self.render.truncation, self.weights)
             if not torch.isfinite(loss) or not loss.requires_grad:  # never step the map on a broken batch
                 skipped += 1
@@ -142,9 +153,21 @@ class Mapper:
                 pose_opt.step()
         with torch.no_grad():
             final = base @ se3_exp(pose_delta * movable) if pose_opt is not None else base
+        self.steps += step
         stats = {k: float(v) for k, v in terms.items()}
-        stats["skipped_steps"] = float(skipped)
+        stats["skipped_steps"], stats["steps"] = float(skipped), float(step)
+        if settle:
+            stats["explained"] = explained
         return orthonormalize_pose(final.detach()), stats
+
+
+def explained_share(rendered: torch.Tensor, measured: torch.Tensor, n_sigma: float) -> float:
+    """Share of rays (N,) whose rendered depth lies within ``n_sigma`` σ(z) of the measured depth
+    (N,), σ the Kinect depth noise (:func:`data_modules.sensor.kinect_depth_sigma`): how much of a
+    frame the map explains already, as far as the sensor can tell (1.0 for no rays)."""
+    if rendered.numel() == 0:
+        return 1.0
+    return float(((rendered - measured).abs() <= n_sigma * kinect_depth_sigma(measured)).float().mean())
 
 
 def grads_finite(optimizer: torch.optim.Optimizer) -> bool:

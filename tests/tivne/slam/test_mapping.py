@@ -158,3 +158,29 @@ def test_the_first_frame_runs_first_now_steps_and_the_next_rounds_the_rest(frame
             fresh.load_state_dict(mapper.state_dict())
             assert fresh.owed == mapper.owed == 4
     assert steps == [3, 8, 8, 4] and sum(steps) == cfg.first_iters + 3 * cfg.iters
+
+
+def test_explained_share_counts_rays_within_tolerance():
+    from data_modules.sensor import kinect_depth_sigma
+    from tivne.slam.mapping import explained_share
+
+    measured = torch.tensor([1.0, 2.0, 3.0, 4.0])
+    sigma = kinect_depth_sigma(measured)  # the residual a perfect map leaves grows with depth
+    assert explained_share(measured + sigma * torch.tensor([0.0, 2.9, -2.9, 3.1]), measured, 3.0) == 0.75
+    assert explained_share(measured + 0.02, measured, 3.0) == 0.5  # 2 cm is noise at 3-4 m, not at 1-2 m
+    assert explained_share(torch.zeros(0), torch.zeros(0), 3.0) == 1.0
+
+
+def test_a_settling_round_stops_early_only_where_the_map_explains_the_frame(frames):
+    """A fresh map explains nothing (the whole round runs); after fitting the same view, its depth
+    renders within the tolerance and the next settling round stops after settle_iters steps."""
+    v0, _, K, f0 = frames
+    cfg = MappingConfig(rays=512, settle_share=0.8, settle_iters=3)
+    mapper = Mapper(make_field(f0, K), cfg, PixelSampler(), RenderConfig(), LossWeights())
+    _, fresh = mapper.run([v0], [True], 10, K, torch.Generator().manual_seed(0), settle=True)
+    assert fresh["steps"] == 10
+    mapper.run([v0], [True], 60, K, torch.Generator().manual_seed(1))
+    _, settled = mapper.run([v0], [True], 10, K, torch.Generator().manual_seed(2), settle=True)
+    assert settled["steps"] == 3
+    _, unsettled = mapper.run([v0], [True], 10, K, torch.Generator().manual_seed(2))  # settle off: every step
+    assert unsettled["steps"] == 10 and mapper.steps == 10 + 60 + 3 + 10
