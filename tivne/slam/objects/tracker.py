@@ -8,7 +8,9 @@ velocity predicts the pose and, as a prior of ``objects.accel_sigma`` / ``angula
 holds what the pixels leave open (a symmetric object's spin, a blurred view). An object seen again
 after more than ``max_gap_s`` starts from its last pose moved so that its last observed points'
 centre lands on the new observation's, turned by the best of several rotation hypotheses
-(:mod:`tivne.slam.objects.reacquire`). Objects cut off by the image border wait for a whole view.
+(:mod:`tivne.slam.objects.reacquire`). Objects cut off by the image border, and objects coming back
+while partly hidden, wait for a whole view; a reference is renewed when its overlap or inlier ratio
+falls, never from a view that shows less than half of what it did (:mod:`tivne.slam.objects.references`).
 """
 
 from __future__ import annotations
