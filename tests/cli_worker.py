@@ -4,8 +4,9 @@ and its stdout / stderr captured at the file-descriptor level, so torch, Lightni
 imported once instead of once per command (~10 s each on 2 cores).
 
 For tests of what commands do with their arguments and files. A test of the process itself (a
-signal, a second process, a clean stderr from interpreter start) starts its own process; only the
-first command of a batch starts with nothing imported.
+signal, a second process) starts its own process. Only the first command of a batch starts with
+nothing imported, so a batch puts first the command whose stderr is checked most strictly (it is
+the one that would show anything an import prints).
 
 ``python tests/cli_worker.py --commands JSON --out FILE`` is the worker; :func:`run_commands`
 starts it.
@@ -69,24 +70,38 @@ def run_module(module: str, args: Sequence[str], patch: contextlib.AbstractConte
     return code, out[0], out[1]
 
 
-def run_commands(commands: Sequence[tuple[str, Sequence[str]]], cwd: Path, timeout: float = 600) -> list[subprocess.CompletedProcess]:
+def run_commands(commands: Sequence[tuple[str, Sequence[str]]], cwd: Path, env: dict[str, str] | None = None,
+                 watch: Sequence[Path] = (), timeout: float = 600) -> list[subprocess.CompletedProcess]:
     """Run ``commands`` ([(module, args), ...]) in order in one new worker process started in
-    ``cwd``; one CompletedProcess (returncode, stdout, stderr) per command."""
+    ``cwd`` (environment ``env``, default this one's); one CompletedProcess (returncode, stdout,
+    stderr) per command, whose ``files`` holds the text of each ``watch`` path (None when absent)
+    as that command left it."""
     with tempfile.TemporaryDirectory(prefix="cli-worker-") as tmp:
         out = Path(tmp) / "results.json"
-        env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        cmd = [sys.executable, __file__, "--commands", json.dumps([[m, list(a)] for m, a in commands]), "--out", str(out)]
+        env = dict(os.environ if env is None else env)
+        env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+        cmd = [sys.executable, __file__, "--commands", json.dumps([[m, list(a)] for m, a in commands]), "--out", str(out),
+               "--watch", json.dumps([str(p) for p in watch])]
         proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
         assert proc.returncode == 0 and out.is_file(), proc.stderr[-3000:]
         results = json.loads(out.read_text())
-    return [subprocess.CompletedProcess([sys.executable, "-m", m, *a], code, stdout, stderr)
-            for (m, a), (code, stdout, stderr) in zip(commands, results)]
+    done = []
+    for (module, args), (code, stdout, stderr, files) in zip(commands, results):
+        done.append(subprocess.CompletedProcess([sys.executable, "-m", module, *args], code, stdout, stderr))
+        done[-1].files = {Path(p): text for p, text in files.items()}
+    return done
+
+
+def read_text(path: str) -> str | None:
+    return Path(path).read_text() if Path(path).is_file() else None
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--commands", required=True, help='JSON: [["module", ["arg", ...]], ...]')
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--watch", default="[]", help="JSON: files whose text is recorded after each command")
     opts = parser.parse_args()
-    done = [run_module(module, args) for module, args in json.loads(opts.commands)]
+    watch = json.loads(opts.watch)
+    done = [(*run_module(module, args), {p: read_text(p) for p in watch}) for module, args in json.loads(opts.commands)]
     opts.out.write_text(json.dumps(done))
