@@ -40,18 +40,28 @@ def poses_written(run_dir: Path) -> int:
     return sum(1 for line in path.read_text().splitlines() if line and not line.startswith("#")) if path.is_file() else 0
 
 
-def stop_after_a_checkpoint(run_dir: Path, proc: subprocess.Popen, signum: int, frames: int = STOP_AFTER, timeout: float = 300) -> None:
-    """Send ``signum`` once a checkpoint exists and at least ``frames`` poses are written."""
+def stop_after_a_checkpoint(runs: dict[Path, tuple[subprocess.Popen, int]], frames: int = STOP_AFTER, timeout: float = 300) -> None:
+    """Send each run (run dir: (process, signal)) its signal once it has a checkpoint and at least
+    ``frames`` poses written, watching all of them at once (one that started sooner is not left
+    running to its end while another is waited for); return when they have all ended."""
+    waiting = dict(runs)
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        assert proc.poll() is None, "the run ended before it could be stopped: " + proc.communicate()[1][-2000:]
-        if (run_dir / "checkpoints" / "slam.pt").is_file() and poses_written(run_dir) >= frames:
-            proc.send_signal(signum)
-            proc.communicate(timeout=120)
-            return
-        time.sleep(0.05)
-    proc.kill()
-    pytest.fail("the run did not reach a checkpoint in time")
+    try:
+        while waiting and time.monotonic() < deadline:
+            for run_dir, (proc, signum) in list(waiting.items()):
+                assert proc.poll() is None, "the run ended before it could be stopped: " + proc.communicate()[1][-2000:]
+                if (run_dir / "checkpoints" / "slam.pt").is_file() and poses_written(run_dir) >= frames:
+                    proc.send_signal(signum)
+                    del waiting[run_dir]
+            time.sleep(0.05)
+    finally:
+        for run_dir, (proc, _) in runs.items():
+            if run_dir in waiting:
+                proc.kill()
+            if proc.returncode is None:
+                proc.communicate(timeout=120)
+    if waiting:
+        pytest.fail("the run did not reach a checkpoint in time")
 
 
 def ate(run_dir: Path) -> float:
@@ -62,8 +72,7 @@ def ate(run_dir: Path) -> float:
 def test_killed_and_interrupted_runs_resume_to_the_uninterrupted_result(tmp_path):
     reference, killed, stopped = tmp_path / "reference", tmp_path / "killed", tmp_path / "stopped"
     kill_proc, term_proc = train(killed), train(stopped)
-    stop_after_a_checkpoint(killed, kill_proc, signal.SIGKILL)
-    stop_after_a_checkpoint(stopped, term_proc, signal.SIGTERM)
+    stop_after_a_checkpoint({killed: (kill_proc, signal.SIGKILL), stopped: (term_proc, signal.SIGTERM)})
 
     assert kill_proc.returncode == -signal.SIGKILL and not (killed / "metrics.json").exists()
     position = read_checkpoint(killed / "checkpoints" / "slam.pt")["resume"]["position"]
