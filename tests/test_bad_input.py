@@ -24,7 +24,6 @@ import subprocess
 import sys
 import tempfile
 import time
-import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +32,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests" / "data_modules"))
+sys.path.insert(0, str(REPO / "tests"))
+from cli_worker import run_module  # noqa: E402
 from fixtures import make_cofusion, make_folder, make_klg, make_tum, random_pose, write_exr, write_png16  # noqa: E402
 
 SMOKE = ("experiment=smoke", "dataset.width=80", "dataset.height=60", "dataset.cache_dir=null")
@@ -200,16 +201,29 @@ def fractional_stride(config: dict, d: Path) -> None:
     config["data"]["stride"] = 1.5
 
 
-HOLDERS: list[subprocess.Popen] = []  # processes holding a run folder's lock, ended after the cases
+HOLDERS: list = []  # processes holding a run folder's lock, ended after the cases
+
+
+def _hold(run: str, held) -> None:
+    from tivne.runlock import acquire
+
+    acquire(run)
+    held.set()
+    time.sleep(600)
 
 
 def held_by_another_run(d: Path) -> None:
-    """``d/run`` locked by a live process (the run folder of a run still going)."""
+    """``d/run`` locked by a live process (the run folder of a run still going), forked from the
+    worker so that it does not import torch and Lightning again."""
+    import multiprocessing
+
     (d / "run").mkdir()
-    hold = "import sys, time; from tivne.runlock import acquire; acquire(sys.argv[1]); print('held', flush=True); time.sleep(600)"
-    proc = subprocess.Popen([sys.executable, "-c", hold, str(d / "run")], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    ctx = multiprocessing.get_context("fork")
+    held = ctx.Event()
+    proc = ctx.Process(target=_hold, args=(str(d / "run"), held), daemon=True)
+    proc.start()
     HOLDERS.append(proc)
-    assert proc.stdout.readline().strip() == "held"
+    assert held.wait(60), "the holder did not take the lock"
 
 
 def sweep_dir(d: Path) -> None:
@@ -365,26 +379,6 @@ CASES: tuple[Case, ...] = (
 
 
 # ----------------------------------------------------------------------------------- running
-@contextlib.contextmanager
-def captured_fds():
-    """stdout / stderr of this process (file descriptors 1 and 2) into temporary files."""
-    files = [tempfile.TemporaryFile(), tempfile.TemporaryFile()]
-    saved = [os.dup(1), os.dup(2)]
-    sys.stdout.flush(), sys.stderr.flush()
-    os.dup2(files[0].fileno(), 1), os.dup2(files[1].fileno(), 2)
-    text: list[str] = []
-    try:
-        yield text
-    finally:
-        sys.stdout.flush(), sys.stderr.flush()
-        os.dup2(saved[0], 1), os.dup2(saved[1], 2)
-        for fh, fd in zip(files, saved):
-            os.close(fd)
-            fh.seek(0)
-            text.append(fh.read().decode(errors="replace"))
-            fh.close()
-
-
 def full_disk(target: str):
     """A writer that fails as a full disk does: ``torch.save`` or every file write."""
     from unittest import mock
@@ -416,22 +410,7 @@ PATCHES = {"torch.save": lambda: full_disk("torch.save"), "write": lambda: full_
 
 def invoke(cli: str, args: list[str], patch: str | None = None) -> tuple[int, str, str]:
     """``python -m <cli> <args>`` in this process: (exit status, stdout, stderr)."""
-    import runpy
-    import warnings
-
-    sys.argv = [MODULES[cli], *args]
-    with captured_fds() as out, warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # runpy: the module was imported before
-        with PATCHES[patch]() if patch else contextlib.nullcontext():
-            try:
-                runpy.run_module(MODULES[cli], run_name="__main__", alter_sys=True)
-                code = 0
-            except SystemExit as exc:
-                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-            except BaseException:  # noqa: BLE001 -- what the interpreter would print
-                traceback.print_exc()
-                code = 1
-    return code, out[0], out[1]
+    return run_module(MODULES[cli], args, PATCHES[patch]() if patch else None)
 
 
 @contextlib.contextmanager
@@ -489,7 +468,7 @@ def run_cases(names: list[str], base: Path) -> list[dict]:
     finally:
         for proc in HOLDERS:
             proc.kill()
-            proc.wait()
+            proc.join()
 
 
 def run_all(base: Path, workers: int = 2) -> dict[str, dict]:

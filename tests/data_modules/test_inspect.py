@@ -27,6 +27,8 @@ from data_modules.tables import read_tum_trajectory
 
 REPO = Path(__file__).resolve().parents[2]
 SMALL = ["dataset.width=80", "dataset.height=60", "dataset.num_frames=5", "dataset.cache_dir=null"]
+sys.path.insert(0, str(REPO / "tests"))
+from cli_worker import run_commands  # noqa: E402
 
 
 class _NoGT(SequenceDataset):
@@ -45,11 +47,16 @@ class _NoGT(SequenceDataset):
         return Frame(i, float(self.timestamps[i]), torch.zeros(12, 16, 3), depth)
 
 
-def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(REPO), "TIVNE_CACHE_DIR": str(cwd / "cache"), "OMP_NUM_THREADS": "1"}
-    return subprocess.run(
-        [sys.executable, "-m", "data_modules.inspect", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=120
-    )
+@pytest.fixture(scope="module")
+def cli(tmp_path_factory) -> tuple[Path, dict[str, subprocess.CompletedProcess]]:
+    """The two command lines of the CLI tests below, run once in one worker process
+    (tests/cli_worker.py) in one empty folder; the refusal, whose stderr is checked whole, first: it
+    starts with nothing imported, as a new process does."""
+    cwd = tmp_path_factory.mktemp("inspect_cli")
+    env = {**os.environ, "TIVNE_CACHE_DIR": str(cwd / "cache"), "OMP_NUM_THREADS": "1"}
+    commands = {"bad input": [*SMALL, "data.stride=0"], "text": [*SMALL, "gt_out=gt.txt", "sheet_out=sheet.png", "sheet_frames=3"]}
+    results = run_commands([("data_modules.inspect", args) for args in commands.values()], cwd=cwd, env=env)
+    return cwd, dict(zip(commands, results))
 
 
 def test_sample_indices():
@@ -106,8 +113,9 @@ def test_run_json_in_process(capsys):
         assert key in s
 
 
-def test_cli_text_gt_and_sheet(tmp_path):
-    res = _cli([*SMALL, "gt_out=gt.txt", "sheet_out=sheet.png", "sheet_frames=3"], tmp_path)
+def test_cli_text_gt_and_sheet(cli):
+    tmp_path, outs = cli
+    res = outs["text"]
     assert res.returncode == 0, res.stderr
     assert "frames:       5" in res.stdout and "80 x 60" in res.stdout and "sampled 5 of 5" in res.stdout
     ts, poses = read_tum_trajectory(tmp_path / "gt.txt")
@@ -118,12 +126,12 @@ def test_cli_text_gt_and_sheet(tmp_path):
     assert torch.allclose(poses, ds.camera_poses(), atol=1e-6)
     sheet = cv2.imread(str(tmp_path / "sheet.png"))
     assert sheet.shape == (3 * 60, 3 * 80, 3)
-    # No Hydra output folders or logs, no cache (cache_dir=null).
+    # No Hydra output folders or logs, no cache (cache_dir=null): from either command.
     assert sorted(p.name for p in tmp_path.iterdir()) == ["gt.txt", "sheet.png"]
 
 
-def test_cli_bad_input_one_line_exit_2(tmp_path):
-    res = _cli([*SMALL, "data.stride=0"], tmp_path)
+def test_cli_bad_input_one_line_exit_2(cli):
+    res = cli[1]["bad input"]
     assert res.returncode == 2
     assert res.stderr.strip() == "error: data.stride: must be >= 1, got 0"
     assert res.stdout == ""

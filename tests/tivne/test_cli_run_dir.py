@@ -1,7 +1,7 @@
 """Post-run commands take a run dir as a user copies it: a sweep's job dir is named from its
 overrides (``0_experiment=smoke,seed=0``), which Hydra's override grammar cannot parse unquoted;
 :func:`tivne.cli.quote_run_dir` quotes it, and view / mesh / evaluate / report run on a real joblib
-sweep's job dir as printed."""
+sweep's job dir as printed (the four command lines in one worker process: tests/cli_worker.py)."""
 
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from tivne.cli import quote_run_dir
 
 REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO / "tests"))
+from cli_worker import run_commands  # noqa: E402
 
 
 @pytest.mark.parametrize("path", [
@@ -38,7 +40,7 @@ def command(module: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True, timeout=300, cwd=cwd, env=env)
 
 
-@pytest.mark.slow  # a joblib sweep of one tiny job, then four commands on its job dir (~60 s)
+@pytest.mark.slow  # a joblib sweep of one tiny job, then four commands on its job dir in one worker (~30 s)
 @pytest.mark.skipif(importlib.util.find_spec("hydra_plugins.hydra_joblib_launcher") is None, reason="needs '.[sweep]'")
 def test_post_run_commands_take_a_joblib_job_dir_as_printed(tmp_path):
     sweep = command("tivne.train", "-m", "experiment=smoke", "dataset.width=80", "dataset.height=60", "dataset.cache_dir=null",
@@ -48,16 +50,20 @@ def test_post_run_commands_take_a_joblib_job_dir_as_printed(tmp_path):
     (job,) = [p.relative_to(tmp_path) for p in (tmp_path / "multirun" / "sweep").iterdir() if p.is_dir()]
     assert job.name.startswith("0_") and job.name.endswith("experiment=smoke,seed=0")  # what the user copies
     arg = f"run_dir={job}"
-    report = command("tivne.report", arg, "report.frames=1", "report.mesh_width=64", cwd=tmp_path)
+    with_view = importlib.util.find_spec("rerun") is not None
+    report, mesh, evaluate, *view = run_commands([
+        ("tivne.report", [arg, "report.frames=1", "report.mesh_width=64"]),
+        ("tivne.mesh", [arg, "mesh.resolution=0.1"]),
+        ("tivne.evaluate", [arg, "settings.render_every=0", "settings.pred_samples=1000", "settings.object_samples=1000",
+                            "settings.static_samples=1000"]),
+        *([("tivne.view", [arg, "every=3", "mesh.resolution=0.1"])] if with_view else []),
+    ], cwd=tmp_path)
     assert report.returncode == 0, report.stderr[-2000:]
     assert (tmp_path / job / "report.html").is_file()
-    mesh = command("tivne.mesh", arg, "mesh.resolution=0.1", cwd=tmp_path)
     assert mesh.returncode == 0 and "faces=" in mesh.stdout, mesh.stderr[-2000:]
-    evaluate = command("tivne.evaluate", arg, "settings.render_every=0", "settings.pred_samples=1000",
-                       "settings.object_samples=1000", "settings.static_samples=1000", cwd=tmp_path)
     assert evaluate.returncode == 0, evaluate.stderr[-2000:]
     assert json.loads(evaluate.stdout)["ate_rmse_m"] is not None
-    if importlib.util.find_spec("rerun") is not None:
-        view = command("tivne.view", arg, "every=3", "mesh.resolution=0.1", cwd=tmp_path)
+    if with_view:
+        (view,) = view
         assert view.returncode == 0, view.stderr[-2000:]
         assert (tmp_path / job / "view.rrd").is_file() and "meshes=2" in view.stdout

@@ -4,7 +4,6 @@ directories over a tiny moving-cube sequence."""
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -27,6 +26,9 @@ from tivne.meshing import save_mesh
 from tivne.slam.outputs import RunDir
 
 REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO / "tests"))
+from cli_worker import run_commands  # noqa: E402
+
 # fps=1: the cube moves ~0.3 m between the first and last frame, so a stale mesh shows up.
 CUBE_ARGS = dict(num_frames=4, fps=1.0, width=64, height=48, depth_noise=False, rgb_noise=0.0, cache_dir=None)
 FAST = MeshEvalSettings(pred_samples=100_000, object_samples=10_000, static_samples=20_000, render_every=2)
@@ -172,10 +174,6 @@ def test_partial_run_is_flagged(tmp_path, view, gt_meshes):
     assert evaluate_run(full, view, settings=FAST)["ate_partial"] is True
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "tivne.evaluate", *args], capture_output=True, text=True, timeout=300, cwd=REPO)
-
-
 def test_cli_merges_into_metrics_json(tmp_path, view, gt_meshes):
     run_dir = make_run(tmp_path, view, gt_meshes)
     overrides = ["experiment=smoke", "data.max_frames=null", "data.resize=null"] + [f"dataset.{k}={'null' if v is None else v}" for k, v in CUBE_ARGS.items()]
@@ -185,16 +183,20 @@ def test_cli_merges_into_metrics_json(tmp_path, view, gt_meshes):
     OmegaConf.save(cfg, run_dir / ".hydra" / "config.yaml")
     (run_dir / "metrics.json").write_text(json.dumps({"frames": 4, "wall_s": 1.5}))
     fast = [f"settings.{k}={v}" for k, v in vars(FAST).items()]
-    out = run_cli(f"run_dir={run_dir}", *fast)
+    # The three command lines in one worker process (tests/cli_worker.py), a refusal whose stderr
+    # must be exactly one line first: it starts with nothing imported, as a new process does.
+    missing, out, refused = run_commands([
+        ("tivne.evaluate", [f"run_dir={tmp_path / 'missing'}"]),
+        ("tivne.evaluate", [f"run_dir={run_dir}", *fast]),
+        ("tivne.evaluate", [f"run_dir={run_dir}", "mesh.times=[99]"]),  # refused; the good summaries stay
+    ], cwd=REPO, watch=[run_dir / "metrics.json"])
     assert out.returncode == 0, out.stderr[-2000:]
-    on_disk = json.loads((run_dir / "metrics.json").read_text())
+    on_disk = json.loads(out.files[run_dir / "metrics.json"])
     assert on_disk["frames"] == 4 and on_disk["wall_s"] == 1.5  # kept
     assert on_disk["ate_rmse_m"] < 1e-5 and on_disk["cube_completion_ratio_last"] > 0.99
     assert json.loads(out.stdout)["ate_rmse_m"] == on_disk["ate_rmse_m"]
 
-    out = run_cli(f"run_dir={run_dir}", "mesh.times=[99]")  # refused; the good summaries stay
-    assert out.returncode == 2 and out.stderr.startswith("error: mesh.times=[99.0]") and len(out.stderr.strip().splitlines()) == 1
-    assert json.loads((run_dir / "metrics.json").read_text()) == on_disk
+    assert refused.returncode == 2 and refused.stderr.startswith("error: mesh.times=[99.0]") and len(refused.stderr.strip().splitlines()) == 1
+    assert json.loads(refused.files[run_dir / "metrics.json"]) == on_disk
 
-    out = run_cli(f"run_dir={tmp_path / 'missing'}")
-    assert out.returncode == 2 and out.stderr.startswith("error:") and len(out.stderr.strip().splitlines()) == 1
+    assert missing.returncode == 2 and missing.stderr.startswith("error:") and len(missing.stderr.strip().splitlines()) == 1

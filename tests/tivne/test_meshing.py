@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -24,6 +23,8 @@ RADIUS = 0.3
 TRUNCATION = 0.05
 COLOUR = (0.2, 0.4, 0.6)
 REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO / "tests"))
+from cli_worker import run_commands  # noqa: E402
 
 
 def sphere_surface(n: int = 4000, radius: float = RADIUS) -> torch.Tensor:
@@ -193,13 +194,15 @@ def test_mesh_run_every(tmp_path):
     assert all(n_faces > 0 for _, _, n_faces, _ in written)
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "tivne.mesh", *args], capture_output=True, text=True, timeout=120, cwd=REPO)
-
-
 def test_cli_round_trip_and_errors(tmp_path):
     run_dir = saved_run(tmp_path)
-    out = run_cli(f"run_dir={run_dir}", "mesh.times=[10.0,10.2]", "mesh.resolution=0.05")
+    # The three command lines in one worker process (tests/cli_worker.py), the refusal whose stderr
+    # must be exactly one line first: it starts with nothing imported, as a new process does.
+    outside, out, missing = run_commands([
+        ("tivne.mesh", [f"run_dir={run_dir}", "mesh.times=[11.0]"]),
+        ("tivne.mesh", [f"run_dir={run_dir}", "mesh.times=[10.0,10.2]", "mesh.resolution=0.05"]),
+        ("tivne.mesh", [f"run_dir={tmp_path / 'nope'}"]),
+    ], cwd=REPO)
     assert out.returncode == 0, out.stderr[-2000:]
     lines = out.stdout.strip().splitlines()
     assert len(lines) == 2 and lines[0].startswith("t=10.000s vertices=") and "mesh_t10.200.ply" in lines[1]
@@ -208,12 +211,10 @@ def test_cli_round_trip_and_errors(tmp_path):
         assert len(mesh.faces) > 100 and radial_error(mesh).max() < 0.03
     assert not (run_dir / "outputs").exists() and not (REPO / "mesh.log").exists()
 
-    out = run_cli(f"run_dir={run_dir}", "mesh.times=[11.0]")
-    assert out.returncode == 2 and out.stderr.startswith("error:") and "outside the recorded range" in out.stderr
-    assert len(out.stderr.strip().splitlines()) == 1
+    assert outside.returncode == 2 and outside.stderr.startswith("error:") and "outside the recorded range" in outside.stderr
+    assert len(outside.stderr.strip().splitlines()) == 1
 
-    out = run_cli(f"run_dir={tmp_path / 'nope'}")
-    assert out.returncode == 2 and out.stderr.startswith("error:") and "Traceback" not in out.stderr
+    assert missing.returncode == 2 and missing.stderr.startswith("error:") and "Traceback" not in missing.stderr
 
 
 class SphereWithGhost(AnalyticSphere):

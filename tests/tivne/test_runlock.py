@@ -4,6 +4,7 @@ lock left by a dead process is taken over; two real runs started at once into on
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import signal
 import subprocess
@@ -18,20 +19,35 @@ from tivne import runlock
 from tivne.runlock import LOCK_NAME, RunLocked, acquire, is_held, release, run_lock
 
 REPO = Path(__file__).resolve().parents[2]
-HOLD = "import sys, time; from tivne.runlock import acquire; acquire(sys.argv[1]); print('held', flush=True); time.sleep(60)"
+
+
+def _hold(run: str, held) -> None:
+    acquire(run)
+    held.set()
+    time.sleep(60)
+
+
+def start_holder(run: Path) -> multiprocessing.Process:
+    """Another process holding ``run``'s lock: forked from this one, so it starts without importing
+    torch and Lightning again (a new interpreter spends ~10 s on that)."""
+    ctx = multiprocessing.get_context("fork")
+    held = ctx.Event()
+    holder = ctx.Process(target=_hold, args=(str(run), held), daemon=True)
+    holder.start()
+    assert held.wait(60), "the holder did not take the lock"
+    return holder
 
 
 def test_a_second_process_is_refused_naming_the_holder(tmp_path):
     run = tmp_path / "run"
-    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(run)], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    holder = start_holder(run)
     try:
-        assert holder.stdout.readline().strip() == "held"
         with pytest.raises(RunLocked, match=rf"another run \(pid {holder.pid}\) is writing into this folder"):
             acquire(run)
         assert not is_held(run)
     finally:
         holder.kill()
-        holder.wait()
+        holder.join()
     with run_lock(run):  # its holder is dead: the kernel dropped the flock, the file is stale
         assert (run / LOCK_NAME).read_text().strip() == str(os.getpid())
     assert not (run / LOCK_NAME).exists()
@@ -70,8 +86,8 @@ def test_lock_in_a_read_only_folder_names_the_folder(tmp_path):
 
 
 def start(run_dir: Path, *extra: str) -> subprocess.Popen:
-    args = ["experiment=smoke", "dataset.cache_dir=null", "dataset.width=80", "dataset.height=60", "dataset.num_frames=60",
-            "data.max_frames=60", "trainer.progress_bar=false", f"hydra.run.dir={run_dir}", *extra]
+    args = ["experiment=smoke", "dataset.cache_dir=null", "dataset.width=80", "dataset.height=60", "dataset.num_frames=10",
+            "data.max_frames=10", "trainer.progress_bar=false", f"hydra.run.dir={run_dir}", *extra]
     env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1")
     return subprocess.Popen([sys.executable, "-m", "tivne.train", *args], cwd=REPO, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
@@ -98,9 +114,9 @@ def test_two_runs_into_one_folder_the_second_is_refused_the_first_is_whole(tmp_p
     assert len(errors) == 1 and f"another run (pid {first.pid}) is writing into this folder" in errors[0], err2[-2000:]
     assert first.returncode == 0, err1[-2000:]
     metrics = json.loads((run / "metrics.json").read_text())
-    assert metrics["complete"] is True and metrics["frames"] == 60
+    assert metrics["complete"] is True and metrics["frames"] == 10
     assert "output.image_every=7" not in yaml.safe_load((run / ".hydra" / "overrides.yaml").read_text())
     events = [p.name for p in (run / "tb").rglob("events.out.tfevents.*")]
     assert events and all(f".{first.pid}." in name for name in events), events  # written by the first run only
-    assert len([line for line in (run / "trajectory.txt").read_text().splitlines() if not line.startswith("#")]) == 60
+    assert len([line for line in (run / "trajectory.txt").read_text().splitlines() if not line.startswith("#")]) == 10
     assert not (run / LOCK_NAME).exists()

@@ -13,12 +13,30 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from data_modules.tables import read_tum_trajectory
-from tivne.config import ConfigError
+from tivne.config import ConfigError, MeshEvalSettings
 from tivne.slam.checkpoint import load_checkpoint
 from tivne.slam.run import run
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 BASE = ["experiment=smoke", "dataset.cache_dir=null", "output.image_every=2"]
+sys.path.insert(0, str(CONF.parent / "tests"))
+from cli_worker import run_commands  # noqa: E402
+
+# The run's final evaluation (output.evaluate=true) with fewer surface samples than the defaults (200k
+# on the mesh, 50k per object, 100k static: ~20 s of nearest-neighbour queries per 5-frame run on
+# 2 cores, against ~2 s; the metrics agree to ~1 mm). These tests check what a run evaluates and
+# writes, not the estimates' noise; every other setting (render_every, threshold, window) is the default.
+FAST_EVALUATION = MeshEvalSettings(pred_samples=100_000, object_samples=10_000, static_samples=20_000)
+
+
+@pytest.fixture
+def fast_evaluation(monkeypatch):
+    from tivne.evaluation import evaluate_run
+
+    def evaluate(*args, **kwargs):
+        return evaluate_run(*args, **kwargs, settings=FAST_EVALUATION)  # a run that chose its own settings fails here
+
+    monkeypatch.setattr("tivne.slam.run.evaluate_run", evaluate)
 
 
 def compose_cfg(*overrides: str):
@@ -61,26 +79,50 @@ def test_no_masks_runs(tmp_path):
     assert (tmp_path / "checkpoints" / "slam.pt").is_file()
 
 
-def test_cli_single_run_and_multirun(tmp_path):
-    out = subprocess.run(
-        [sys.executable, "-m", "tivne.train", *BASE, f"hydra.run.dir={tmp_path / 'one'}"],
-        capture_output=True, text=True, timeout=300,
-    )
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert (tmp_path / "one" / "trajectory.txt").is_file() and (tmp_path / "one" / ".hydra" / "config.yaml").is_file()
-    out = subprocess.run(
-        [sys.executable, "-m", "tivne.train", "-m", *BASE, "field.time=true,false", f"hydra.sweep.dir={tmp_path / 'sweep'}"],
-        capture_output=True, text=True, timeout=300,
-    )
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert len(list((tmp_path / "sweep").glob("*/trajectory.txt"))) == 2
+def unusable_depth_sequence(seq: Path) -> None:
+    """A folder sequence of 6 frames whose depth is 0 everywhere (random colour)."""
+    import cv2
+    import numpy as np
+
+    for sub in ("rgb", "depth"):
+        (seq / sub).mkdir(parents=True)
+    gen = np.random.default_rng(0)
+    for i in range(6):
+        cv2.imwrite(str(seq / "rgb" / f"{i:06d}.png"), gen.integers(0, 255, (60, 80, 3), dtype=np.uint8))
+        cv2.imwrite(str(seq / "depth" / f"{i:06d}.png"), np.zeros((60, 80), np.uint16))
+    (seq / "intrinsics.txt").write_text("60 60 39.5 29.5\n")
 
 
-def test_bad_dataset_value_is_one_error_line(tmp_path):
-    out = subprocess.run(
-        [sys.executable, "-m", "tivne.train", *BASE, "dataset.num_frames=0", f"hydra.run.dir={tmp_path}"],
-        capture_output=True, text=True, timeout=120,
-    )
+@pytest.fixture(scope="module")
+def cli(tmp_path_factory) -> tuple[Path, dict[str, subprocess.CompletedProcess]]:
+    """The command lines of the CLI tests below, run once, in one worker process
+    (tests/cli_worker.py): one interpreter start instead of four. The refusal whose stderr is
+    checked line by line goes first: it starts with nothing imported, as a new process does."""
+    root = tmp_path_factory.mktemp("train_cli")
+    (root / "refused").mkdir()
+    unusable_depth_sequence(root / "seq")
+    commands = {
+        "bad value": [*BASE, "dataset.num_frames=0", f"hydra.run.dir={root / 'refused'}"],
+        "no depth": ["experiment=smoke", "dataset=folder", f"dataset.root={root / 'seq'}", "masks=none", f"hydra.run.dir={root / 'run'}"],
+        "single": [*BASE, f"hydra.run.dir={root / 'one'}"],
+        "multirun": ["-m", *BASE, "field.time=true,false", f"hydra.sweep.dir={root / 'sweep'}"],
+    }
+    results = run_commands([("tivne.train", args) for args in commands.values()], cwd=root)
+    return root, dict(zip(commands, results))
+
+
+def test_cli_single_run_and_multirun(cli):
+    root, outs = cli
+    out = outs["single"]
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert (root / "one" / "trajectory.txt").is_file() and (root / "one" / ".hydra" / "config.yaml").is_file()
+    out = outs["multirun"]
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert len(list((root / "sweep").glob("*/trajectory.txt"))) == 2
+
+
+def test_bad_dataset_value_is_one_error_line(cli):
+    out = cli[1]["bad value"]
     assert out.returncode == 2
     errors = [line for line in out.stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "num_frames" in errors[0]
@@ -100,7 +142,7 @@ def test_presets_compose(tmp_path):
     assert len(read_tum_trajectory(tmp_path / "trajectory.txt")[0]) == 5
 
 
-def test_final_evaluation_writes_4d_metrics(tmp_path):
+def test_final_evaluation_writes_4d_metrics(tmp_path, fast_evaluation):
     cfg = compose_cfg("output.evaluate=true", "mesh.times=[0.0,0.1]")
     metrics = run(cfg, tmp_path)
     on_disk = json.loads((tmp_path / "metrics.json").read_text())
@@ -115,7 +157,7 @@ def test_final_evaluation_writes_4d_metrics(tmp_path):
 
 
 @pytest.mark.parametrize("tracks", ["tracked", "oracle"])
-def test_object_fields_run_on_their_tracks_and_come_back_from_the_checkpoint(tmp_path, tracks):
+def test_object_fields_run_on_their_tracks_and_come_back_from_the_checkpoint(tmp_path, tracks, fast_evaluation):
     from tivne.field.objects import ObjectField
 
     metrics = run(compose_cfg("field=objects", f"object_field.tracks={tracks}", "output.evaluate=true", "mesh.times=[0.0,0.1]"), tmp_path)
@@ -132,28 +174,14 @@ def test_object_fields_without_the_object_tracker_are_refused_before_the_run(tmp
     assert not (tmp_path / "run").exists()
 
 
-def test_a_run_without_usable_depth_fails_with_one_line_not_an_identity_trajectory(tmp_path):
-    import cv2
-    import numpy as np
-
-    seq = tmp_path / "seq"
-    for sub in ("rgb", "depth"):
-        (seq / sub).mkdir(parents=True)
-    gen = np.random.default_rng(0)
-    for i in range(6):
-        cv2.imwrite(str(seq / "rgb" / f"{i:06d}.png"), gen.integers(0, 255, (60, 80, 3), dtype=np.uint8))
-        cv2.imwrite(str(seq / "depth" / f"{i:06d}.png"), np.zeros((60, 80), np.uint16))
-    (seq / "intrinsics.txt").write_text("60 60 39.5 29.5\n")
-    run_dir = tmp_path / "run"
-    out = subprocess.run(
-        [sys.executable, "-m", "tivne.train", "experiment=smoke", "dataset=folder", f"dataset.root={seq}", "masks=none", f"hydra.run.dir={run_dir}"],
-        capture_output=True, text=True, timeout=300,
-    )
+def test_a_run_without_usable_depth_fails_with_one_line_not_an_identity_trajectory(cli):
+    root, outs = cli
+    out = outs["no depth"]
     assert out.returncode == 3, out.stderr[-2000:]
     errors = [line for line in out.stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "could not be tracked" in errors[0] and "Traceback" not in out.stderr
     assert sum(line.startswith("warning: frame") for line in out.stderr.splitlines()) == 4
-    metrics = json.loads((run_dir / "metrics.json").read_text())
+    metrics = json.loads((root / "run" / "metrics.json").read_text())
     assert metrics["frames_without_tracking"] == 4  # written before the refusal
 
 
