@@ -16,12 +16,31 @@ from __future__ import annotations
 
 import bisect
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
 from data_modules.poses import rotation_from_vector, rotation_vector
-from tivne.slam.tracking.odometry import OdometryResult
+from tivne.config import OdometryConfig
+from tivne.slam.objects.motion import camera_in_object, object_pose, odometry_init
+from tivne.slam.objects.references import REUSE_ANGLE_DEG, Reference, centred_on, pick_reference
+from tivne.slam.objects.track import ObjectTrack
+from tivne.slam.tracking.odometry import OdometryResult, track_pyramids
+from tivne.slam.tracking.pyramid import PyramidLevel
+
+# Rotation hypotheses every this many degrees about each camera axes, each aligned with this many
+# Gauss–Newton iterations at the coarsest level, and about the axis the object last turned about
+# when it turned by at least MIN_SPIN_DEG over its last SPIN_BASELINE_S; the best REFINED of them
+# (and the prediction) refined at every level.
+STEP_DEG = 30.0
+COARSE_ITERATIONS = 8
+REFINED = 4
+SPIN_BASELINE_S = 0.3
+MIN_SPIN_DEG = 5.0
+# A turned hypothesis is taken only when its photometric RMS is within this factor of the object's
+# typical one (its recent alignments): one that fits the texture no better than that is a guess,
+# and the motion's own prediction is the better guess.
+MAX_RMS_RATIO = 2.0
 
 
 @dataclass(frozen=True)
@@ -65,10 +84,22 @@ def ranked_alignments(candidates: list[Hypothesis], min_share: float = 0.8) -> l
     return [h for h, _ in sorted(close, key=lambda hs: hs[0].result.rms_photometric if not math.isnan(hs[0].result.rms_photometric) else math.inf)]
 
 
-def best_alignment(candidates: list[Hypothesis], min_share: float = 0.8) -> Hypothesis | None:
-    """The first of :func:`ranked_alignments`, or None when no alignment ran."""
+def best_alignment(candidates: list[Hypothesis], min_share: float = 0.8, preferred: Hypothesis | None = None) -> Hypothesis | None:
+    """The first of :func:`ranked_alignments`, or None when no alignment ran; but ``preferred`` (the
+    motion's own prediction, aligned) when it explains the pixels about as well: its support
+    (overlap × inlier ratio) reaches ``min_share`` of the first's and its photometric RMS is within
+    1 / ``min_share`` of it. Where no hypothesis fits the texture clearly better (a ball turned onto a
+    side no stored view saw: every turn fits its geometry alike), the prediction is the better guess."""
     ranked = ranked_alignments(candidates, min_share)
-    return ranked[0] if ranked else None
+    if not ranked:
+        return None
+    first = ranked[0]
+    if preferred is None or preferred is first or preferred.result is None or preferred.result.num_valid == 0:
+        return first
+    a, b = preferred.result, first.result
+    supported = a.overlap * a.inlier_ratio >= min_share * b.overlap * b.inlier_ratio
+    textured = math.isnan(a.rms_photometric) or math.isnan(b.rms_photometric) or min_share * a.rms_photometric <= b.rms_photometric
+    return preferred if supported and textured else first
 
 
 def spin_axis(taus: list[float], poses: torch.Tensor, baseline: float, min_deg: float) -> torch.Tensor | None:
@@ -80,3 +111,39 @@ def spin_axis(taus: list[float], poses: torch.Tensor, baseline: float, min_deg: 
         return None
     w = rotation_vector(poses[-1, :3, :3].double() @ poses[inner, :3, :3].double().T)
     return w / w.norm() if float(w.norm()) >= math.radians(min_deg) else None
+
+
+def reacquire(references: list[Reference], track: ObjectTrack, pyramid: list[PyramidLevel], T_pred: torch.Tensor, T_wc: torch.Tensor,
+              centre: torch.Tensor, odometry: OdometryConfig, typical_rms: float = math.nan) -> tuple[Reference, OdometryResult]:
+    """(reference, odometry result) of an object seen again after a gap, from its current ``pyramid``
+    (object pixels), its predicted pose ``T_pred`` (4, 4) and the camera pose ``T_wc`` (4, 4): the
+    prediction turned about the object's origin (:func:`rotation_hypotheses`), each hypothesis
+    centred on what is seen now (``centre`` (3,), world; :func:`centred_on`) by the stored view
+    nearest its side and aligned at the coarsest level against that view; the best ``REFINED`` and
+    the prediction refined at every level; the best of those (:func:`best_alignment`, the prediction
+    unless another is clearly better), and a turned one only when it fits the texture about as well
+    as the object's recent alignments did (``typical_rms``; nan: not checked). The result may fail:
+    then the caller waits for another view or restarts from the prediction."""
+    coarse = replace(odometry, levels=1, max_iterations=COARSE_ITERATIONS)
+    axes = T_wc[:3, :3].T.double()  # the camera's axes in the world
+    spin = spin_axis(track.observed_taus(), track.poses(), SPIN_BASELINE_S, MIN_SPIN_DEG)
+    if spin is not None:  # a spinning object most likely went on spinning about the same axis
+        axes = torch.cat([spin[None], axes])
+    middle = None if track.box is None else track.box.mean(0)
+    candidates = []
+    for T in rotation_hypotheses(T_pred, axes, STEP_DEG):
+        ref = pick_reference(references, camera_in_object(T, T_wc), REUSE_ANGLE_DEG)
+        T = centred_on(T, ref, centre, T_wc[:3, :3], middle)
+        res = track_pyramids(ref.pyramid[-1:], pyramid[-1:], odometry_init(T, T_wc, ref.C), coarse)
+        candidates.append(Hypothesis(object_pose(T_wc, res.T_ref_cur, ref.C), res))
+    tops = ranked_alignments(candidates)[:REFINED]
+    tops += [candidates[0]] if all(h is not candidates[0] for h in tops) else []  # the prediction is always refined
+    refs = [pick_reference(references, camera_in_object(h.T_wo, T_wc), REUSE_ANGLE_DEG) for h in tops]
+    refined = [Hypothesis(h.T_wo, track_pyramids(r.pyramid, pyramid, odometry_init(h.T_wo, T_wc, r.C), odometry))
+               for h, r in zip(tops, refs)]
+    k_pred = next(i for i, h in enumerate(tops) if h is candidates[0])
+    best = best_alignment(refined, preferred=refined[k_pred])
+    k = next((i for i, h in enumerate(refined) if h is best), k_pred)
+    if k != k_pred and refined[k].result.rms_photometric > MAX_RMS_RATIO * typical_rms:  # False when either is nan
+        k = k_pred
+    return refs[k], refined[k].result

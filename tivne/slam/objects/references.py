@@ -9,17 +9,20 @@ import torch
 
 from tivne.slam.tracking.pyramid import PyramidLevel
 
+# A stored view is reused when it saw the object from within this angle of the predicted view.
+REUSE_ANGLE_DEG = 12.0
+
 
 @dataclass
 class Reference:
     """An object's keyframe observation: its pyramid (object pixels only), camera-to-object pose,
-    field time and number of object pixels."""
+    field time, number of object pixels and its (M, 3) object-frame points (a subsample)."""
 
     pyramid: list[PyramidLevel]
     C: torch.Tensor
     tau: float
     pixels: int = 0
-
+    points: torch.Tensor | None = None
 
 
 def view_direction(C: torch.Tensor) -> torch.Tensor:
@@ -29,15 +32,18 @@ def view_direction(C: torch.Tensor) -> torch.Tensor:
 
 def pick_reference(references: list[Reference], C_pred: torch.Tensor, max_angle_deg: float) -> Reference:
     """The oldest keyframe that saw the object from within ``max_angle_deg`` of the predicted view
-    and from a distance within 25 %, else the newest: tracking against the oldest usable view, not
-    a chain of the latest ones, keeps the object's drift from growing with every new keyframe."""
+    and from a distance within 25 %, else the one whose view is nearest in direction (the newest of
+    equals): tracking against the oldest usable view, not a chain of the latest ones, keeps the
+    object's drift from growing with every new keyframe; and a turning object seen again from a
+    side an older keyframe saw is aligned to that one, not to the newest, which saw another side."""
     d_pred, dist_pred = view_direction(C_pred), float(C_pred[:3, 3].norm())
     cos_max = float(np.cos(np.radians(max_angle_deg)))
-    for ref in references[:-1]:
+    cosines = [float(view_direction(ref.C) @ d_pred) for ref in references]
+    for ref, cos in zip(references[:-1], cosines):
         ratio = float(ref.C[:3, 3].norm()) / max(dist_pred, 1e-9)
-        if float(view_direction(ref.C) @ d_pred) >= cos_max and 0.8 <= ratio <= 1.25:
+        if cos >= cos_max and 0.8 <= ratio <= 1.25:
             return ref
-    return references[-1]
+    return references[max(range(len(references)), key=lambda i: (cosines[i], i))]
 
 
 def shows_enough(pixels: int, distance: float, ref: Reference, share: float = 0.5) -> bool:
@@ -46,3 +52,20 @@ def shows_enough(pixels: int, distance: float, ref: Reference, share: float = 0.
     pixels): less means it is cut by the border or occluded."""
     ratio = float(ref.C[:3, 3].norm()) / max(distance, 1e-9)
     return pixels >= share * ref.pixels * ratio**2
+
+
+def centred_on(T_wo: torch.Tensor, ref: Reference, centre: torch.Tensor, R_wc: torch.Tensor, middle: torch.Tensor | None = None) -> torch.Tensor:
+    """(4, 4) ``T_wo`` moved so that the object's ``middle`` (3,) (object frame, e.g. the centre of
+    its observed extent; None: its origin) sits, relative to ``centre`` (3,) (the centre of the
+    object points seen now, world) and in the current camera's axes ``R_wc`` (3, 3), where it sat
+    relative to the centre of what ``ref`` saw, in that camera's axes: the centre of a visible side
+    lies between the camera and the object's middle, and where is a matter of the view, not of the
+    object's unknown rotation; the origin then follows the pose's rotation (kept as it is). So a
+    sliver's centre or another side's does not shift the object. Unchanged when ``ref`` holds no points."""
+    if ref.points is None or not len(ref.points):
+        return T_wo
+    T = T_wo.clone()
+    m = torch.zeros(3, dtype=T.dtype) if middle is None else middle.to(T)
+    middle_in_ref_camera = ref.C[:3, :3].T.to(T) @ (m - ref.points.mean(0).to(T))  # middle − seen centre, ref camera axes
+    T[:3, 3] = centre.to(T) + R_wc.to(T) @ middle_in_ref_camera - T[:3, :3] @ m
+    return T

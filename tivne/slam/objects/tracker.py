@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import bisect
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +42,8 @@ from tivne.slam.objects.instances import (
     world_points,
 )
 from tivne.slam.objects.motion import camera_in_object, centred_information, object_pose, odometry_init
-from tivne.slam.objects.reacquire import Hypothesis, best_alignment, ranked_alignments, rotation_hypotheses, spin_axis
-from tivne.slam.objects.references import Reference, pick_reference, shows_enough
+from tivne.slam.objects.reacquire import reacquire
+from tivne.slam.objects.references import REUSE_ANGLE_DEG, Reference, centred_on, pick_reference, shows_enough
 from tivne.slam.objects.track import ObjectTrack
 from tivne.slam.outputs import RunDir
 from tivne.slam.tracking.odometry import OdometryResult, PosePrior, frame_pyramid, track_pyramids
@@ -55,16 +55,8 @@ MIN_WRITTEN_POSES = 3
 MIN_OVERLAP = 0.1
 # Keyframe observations kept per object (the oldest goes first).
 MAX_REFERENCES = 12
-# A keyframe is reused when it saw the object from within this angle of the predicted view.
-REUSE_ANGLE_DEG = 12.0
-# Re-acquisition after a gap: rotation hypotheses every this many degrees about each camera axis,
-# each aligned with this many Gauss–Newton iterations at the coarsest level; and about the axis the
-# object last turned about, when it turned by at least MIN_SPIN_DEG over its last SPIN_BASELINE_S.
-REACQUIRE_STEP_DEG = 30.0
-REACQUIRE_ITERATIONS = 8
-REACQUIRE_REFINED = 4  # the best coarse alignments refined at every level, the best of them kept
-SPIN_BASELINE_S = 0.3
-MIN_SPIN_DEG = 5.0
+# Alignments whose photometric RMS makes an object's typical residual (re-acquisition's yardstick).
+RMS_HISTORY = 20
 
 
 @dataclass(frozen=True)
@@ -111,10 +103,15 @@ class _Live:
     points: torch.Tensor
     size: float
     last_time: float
+    rms: list[float] = field(default_factory=list)  # photometric RMS of its last alignments
 
     @property
     def reference(self) -> Reference | None:
         return self.references[-1] if self.references else None
+
+    def typical_rms(self) -> float:
+        """The median photometric RMS of the object's recent alignments (nan before any)."""
+        return float(np.median(self.rms)) if self.rms else float("nan")
 
 
 class ObjectTracker:
@@ -215,11 +212,14 @@ class ObjectTracker:
             self._new_reference(oid, inner, pyramid, depth, T_wc, T_pred, tau, t)
             return ObjectObservation(oid, tau, t, T_pred, pixels, False, reidentified=reid, new_reference=True)
         if back:  # it may have turned by anything meanwhile: several rotations, the best alignment
-            ref, res = self._reacquire(track, live, pyramid, T_pred, T_wc)
+            ref, res = reacquire(live.references, track, pyramid, T_pred, T_wc, world_points(inner, depth, self.K, T_wc).mean(0),
+                                 self.odo, live.typical_rms())
         else:
             ref = pick_reference(live.references, camera_in_object(T_pred, T_wc), REUSE_ANGLE_DEG)
             init = odometry_init(T_pred, T_wc, ref.C)
-            res = track_pyramids(ref.pyramid, pyramid, init, self.odo, prior=self._prior(init, ref.C, t - live.last_time))
+            # The motion prior only once the track has a velocity again (after a gap it holds the last pose).
+            prior = self._prior(init, ref.C, t - live.last_time) if self._steady(oid) else None
+            res = track_pyramids(ref.pyramid, pyramid, init, self.odo, prior=prior)
         if not self._good(res):
             if back and len(self.pending.get(oid, [])) < self.cfg.border_wait:  # no anchor from one poor view: try the next
                 self.pending.setdefault(oid, []).append(_Pending(pyramid, mask, T_wc, tau, t, pixels))
@@ -237,33 +237,13 @@ class ObjectTracker:
         # A view that shows less than half of what its reference did at the same distance (cut by the
         # border, occluded) does not become a reference: it would hand its open rotation on.
         stale = res.overlap < self.cfg.keyframe_overlap or res.inlier_ratio < self.cfg.keyframe_inliers
-        new_ref = stale and ref is live.reference and shows_enough(int(inner.sum()), float(camera_in_object(T_wo, T_wc)[:3, 3].norm()), ref)
+        new_ref = stale and shows_enough(int(inner.sum()), float(camera_in_object(T_wo, T_wc)[:3, 3].norm()), ref)
         self._remember(oid, inner, depth, T_wc, T_wo, t, pyramid if new_ref else None, tau)
+        if not back and np.isfinite(res.rms_photometric):
+            self.live[oid].rms = (self.live[oid].rms + [res.rms_photometric])[-RMS_HISTORY:]
         return ObjectObservation(oid, tau, t, T_wo, pixels, True, reidentified=reid, new_reference=new_ref,
                                  overlap=res.overlap, inlier_ratio=res.inlier_ratio)
 
-    def _reacquire(self, track: ObjectTrack, live: _Live, pyramid: list[PyramidLevel], T_pred: torch.Tensor, T_wc: torch.Tensor):
-        """(reference, odometry result) of an object seen again after a gap: the prediction turned
-        about the object's origin in ``REACQUIRE_STEP_DEG`` steps about the camera's three axes, each
-        aligned at the coarsest level against the stored view nearest its side, the best
-        ``REACQUIRE_REFINED`` refined at every level, the best of those kept (:mod:`tivne.slam.objects.reacquire`)."""
-        coarse = replace(self.odo, levels=1, max_iterations=REACQUIRE_ITERATIONS)
-        axes = T_wc[:3, :3].T.double()  # the camera's axes in the world
-        spin = spin_axis(track.observed_taus(), track.poses(), SPIN_BASELINE_S, MIN_SPIN_DEG)
-        if spin is not None:  # a spinning object most likely went on spinning about the same axis
-            axes = torch.cat([spin[None], axes])
-        candidates = []
-        for T in rotation_hypotheses(T_pred, axes, REACQUIRE_STEP_DEG):
-            ref = pick_reference(live.references, camera_in_object(T, T_wc), REUSE_ANGLE_DEG)
-            res = track_pyramids(ref.pyramid[-1:], pyramid[-1:], odometry_init(T, T_wc, ref.C), coarse)
-            candidates.append(Hypothesis(object_pose(T_wc, res.T_ref_cur, ref.C), res))
-        tops = ranked_alignments(candidates)[:REACQUIRE_REFINED] or [Hypothesis(T_pred)]
-        refs = [pick_reference(live.references, camera_in_object(h.T_wo, T_wc), REUSE_ANGLE_DEG) for h in tops]
-        refined = [Hypothesis(h.T_wo, track_pyramids(r.pyramid, pyramid, odometry_init(h.T_wo, T_wc, r.C), self.odo))
-                   for h, r in zip(tops, refs)]
-        best = best_alignment(refined)
-        k = next((i for i, h in enumerate(refined) if h is best), 0)
-        return refs[k], refined[k].result
 
     def _prior(self, init: torch.Tensor, C_ref: torch.Tensor, dt: float) -> PosePrior | None:
         """The motion prior (``objects.accel_sigma``, ``angular_accel_sigma``) on the odometry's
@@ -337,23 +317,34 @@ class ObjectTracker:
             self.tracks[oid].grow_box(torch.stack([lo, hi]))
         refs = list(self.live[oid].references) if oid in self.live else []
         if pyramid is not None:
-            refs = (refs + [Reference(pyramid, C, tau, int(mask.sum()))])[-MAX_REFERENCES:]
-        self.live[oid] = _Live(refs, pts, extent(pts), t)
+            refs = (refs + [Reference(pyramid, C, tau, int(mask.sum()), pts)])[-MAX_REFERENCES:]
+        self.live[oid] = _Live(refs, pts, extent(pts), t, self.live[oid].rms if oid in self.live else [])
 
     def _predict(self, oid: int, mask: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float) -> torch.Tensor:
         """Constant velocity (from the last two observations, when they were no more than
         ``max_gap_s`` apart); after a gap that pose moved so the last observed points' centre lands
-        on the centre of this observation (the rotation still carried on at the last rate)."""
+        on the centre of this observation (the rotation still carried on at the last rate), then
+        centred by the stored view nearest the predicted side (:func:`centred_on`: the last view may
+        have been a sliver at the border, whose centre is not the centre of a whole view)."""
         track, live = self.tracks[oid], self.live.get(oid)
-        taus, poses = track.observed_taus(), track.poses()
-        steady = len(taus) >= 2 and self.stamps[oid][taus[-1]] - self.stamps[oid][taus[-2]] <= self.cfg.max_gap_s
-        T = track.pose_at(tau) if steady else poses[-1].clone()
-        if live is not None and t - live.last_time <= self.cfg.max_gap_s:
+        recent = live is not None and t - live.last_time <= self.cfg.max_gap_s
+        # Just seen: carried on at the track's last velocity, across a gap if it had one (held still it
+        # lags a moving object, and the prior then holds the lag); after a gap only a steady velocity.
+        T = track.pose_at(tau) if recent or self._steady(oid) else track.poses()[-1].clone()
+        if recent:
             return T
         if live is not None and len(live.points):
             centre_now = world_points(mask, depth, self.K, T_wc).mean(0)
             T[:3, 3] += centre_now - transform_points(T, live.points.mean(0, keepdim=True))[0]
+            if live.references:
+                T = centred_on(T, pick_reference(live.references, camera_in_object(T, T_wc), REUSE_ANGLE_DEG), centre_now, T_wc[:3, :3],
+                              None if track.box is None else track.box.mean(0))
         return T
+
+    def _steady(self, oid: int) -> bool:
+        """Whether the track has a velocity: its last two observations are at most ``max_gap_s`` apart."""
+        taus = self.tracks[oid].observed_taus()
+        return len(taus) >= 2 and self.stamps[oid][taus[-1]] - self.stamps[oid][taus[-2]] <= self.cfg.max_gap_s
 
     # ---- identities from geometric segments ---------------------------------------------------
     def _associate(self, segments: list[torch.Tensor], frame: Frame, T_wc: torch.Tensor, tau: float) -> dict[tuple[int, bool], torch.Tensor]:

@@ -42,6 +42,22 @@ def test_best_alignment_prefers_texture_among_equally_supported_poses():
     assert best_alignment(no_colour) is right
 
 
+def test_the_prediction_is_kept_unless_another_hypothesis_is_clearly_better():
+    """A ball turned onto a side no stored view saw: every turn fits its geometry alike and none its
+    texture better than the prediction does, so the prediction stays; a turn that explains the
+    texture clearly better (or the pixels at all) replaces it."""
+    prediction = Hypothesis(torch.eye(4, dtype=torch.float64), result(0.9, 1.0, 0.15))
+    turned = Hypothesis(2 * torch.eye(4, dtype=torch.float64), result(0.92, 1.0, 0.14))
+    assert best_alignment([turned, prediction], preferred=prediction) is prediction
+    assert best_alignment([turned, prediction]) is turned  # without a preference: the lowest RMS
+    textured = Hypothesis(3 * torch.eye(4, dtype=torch.float64), result(0.9, 1.0, 0.03))
+    assert best_alignment([turned, textured, prediction], preferred=prediction) is textured
+    unaligned = Hypothesis(torch.eye(4, dtype=torch.float64), result(0.9, 0.0, math.nan, num_valid=0))
+    assert best_alignment([turned, unaligned], preferred=unaligned) is turned
+    half = Hypothesis(torch.eye(4, dtype=torch.float64), result(0.4, 1.0, 0.13))  # explains less than 80 % as many pixels
+    assert best_alignment([turned, half], preferred=half) is turned
+
+
 def test_centred_prior_penalises_a_spin_about_the_centre_as_a_rotation_only():
     centre = torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64)
     lam = centred_information(0.01, 0.1, centre)

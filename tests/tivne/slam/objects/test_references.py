@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from tivne.slam.objects.references import Reference, pick_reference, shows_enough
+from tivne.slam.objects.references import Reference, centred_on, pick_reference, shows_enough
 
 
 def _camera_at(position) -> torch.Tensor:
@@ -27,8 +27,35 @@ def test_a_view_shows_enough_by_pixels_scaled_to_its_distance():
     assert not shows_enough(100, 2.0, ref)
 
 
-def test_the_oldest_reference_from_a_similar_view_is_picked_else_the_newest():
+def test_the_oldest_reference_from_a_similar_view_is_picked_else_the_nearest_in_direction():
     refs = [_reference((0.0, 0.0, 1.0), tau=0.0), _reference((0.0, 1.0, 0.0), tau=1.0), _reference((1.0, 0.0, 0.0), tau=2.0)]
     assert pick_reference(refs, _camera_at((0.0, 0.05, 1.0)), 12.0).tau == 0.0  # near the first's direction
-    assert pick_reference(refs, _camera_at((0.0, 0.0, 2.0)), 12.0).tau == 2.0  # same direction, twice as far
-    assert pick_reference(refs, _camera_at((-1.0, 0.0, 0.0)), 12.0).tau == 2.0  # no stored view near it
+    # Same direction as the first but twice as far: no usable one; the nearest in direction is the first.
+    assert pick_reference(refs, _camera_at((0.0, 0.0, 2.0)), 12.0).tau == 0.0
+    # 17 degrees from the second's side (none within 12): the second, not the newest, which saw another side.
+    assert pick_reference(refs, _camera_at((0.0, 1.0, 0.3)), 12.0).tau == 1.0
+    # Opposite the newest, equally far from the other two: the newer of those.
+    assert pick_reference(refs, _camera_at((-1.0, 0.0, 0.0)), 12.0).tau == 1.0
+
+
+def test_a_pose_is_centred_where_the_origin_sat_behind_what_its_reference_saw():
+    """The reference saw the object's near side, its centre 0.1 m in front of the origin towards the
+    camera; now that side's centre is seen at (1, 2, 3.1): the origin goes 0.1 m behind it along the
+    current camera's viewing direction, whatever the pose's rotation (kept as it is)."""
+    ref = Reference([], _camera_at((0.0, 0.0, 1.0)), 0.0, 1000, torch.tensor([[0.0, 0.0, 0.1], [0.02, 0.0, 0.1], [-0.02, 0.0, 0.1]]))
+    T = torch.eye(4, dtype=torch.float64)
+    T[:3, :3] = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)  # 90 deg about z
+    centre = torch.tensor([1.0, 2.0, 3.1], dtype=torch.float64)
+    centred = centred_on(T, ref, centre, torch.eye(3, dtype=torch.float64))
+    assert torch.allclose(centred[:3, :3], T[:3, :3])
+    assert torch.allclose(centred[:3, 3], torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+    R_wc = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]], dtype=torch.float64)  # camera turned 90 deg about x
+    assert torch.allclose(centred_on(T, ref, centre, R_wc)[:3, 3], torch.tensor([1.0, 2.1, 3.1], dtype=torch.float64))
+    assert torch.equal(centred_on(T, _reference((0.0, 0.0, 1.0)), centre, R_wc), T)  # no points: unchanged
+    # The object's middle 0.2 m from its origin along its x: the middle sits where the origin did, the
+    # origin follows the pose's rotation (90 deg about z turns the object's x onto the world's y).
+    middle = torch.tensor([0.2, 0.0, 0.0], dtype=torch.float64)
+    ref_at_middle = Reference([], ref.C, 0.0, 1000, ref.points + middle.float())
+    placed = centred_on(T, ref_at_middle, centre, torch.eye(3, dtype=torch.float64), middle)
+    assert torch.allclose(placed[:3, 3] + T[:3, :3] @ middle, torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+    assert torch.allclose(placed[:3, 3], torch.tensor([1.0, 1.8, 3.0], dtype=torch.float64))
