@@ -129,11 +129,10 @@ def reacquire(references: list[Reference], track: ObjectTrack, pyramid: list[Pyr
     spin = spin_axis(track.observed_taus(), track.poses(), SPIN_BASELINE_S, MIN_SPIN_DEG)
     if spin is not None:  # a spinning object most likely went on spinning about the same axis
         axes = torch.cat([spin[None], axes])
-    middle = None if track.box is None else track.box.mean(0)
     candidates = []
     for T in rotation_hypotheses(T_pred, axes, STEP_DEG):
         ref = pick_reference(references, camera_in_object(T, T_wc), REUSE_ANGLE_DEG)
-        T = centred_on(T, ref, centre, T_wc[:3, :3], middle)
+        T = centred_on(T, ref, centre, T_wc[:3, :3], track.middle)
         res = track_pyramids(ref.pyramid[-1:], pyramid[-1:], odometry_init(T, T_wc, ref.C), coarse)
         candidates.append(Hypothesis(object_pose(T_wc, res.T_ref_cur, ref.C), res))
     tops = ranked_alignments(candidates)[:REFINED]

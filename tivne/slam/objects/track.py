@@ -59,6 +59,11 @@ class ObjectTrack:
     def __len__(self) -> int:
         return len(self._taus)
 
+    @property
+    def middle(self) -> torch.Tensor | None:
+        """(3,) centre of :attr:`box` in object coordinates, or None before any point was seen."""
+        return None if self.box is None else self.box.mean(0)
+
     def __repr__(self) -> str:
         span = f"τ {self._taus[0]:.3f}..{self._taus[-1]:.3f}" if self._taus else "empty"
         return f"ObjectTrack(id={self.object_id}, name={self.name!r}, {len(self)} poses, {span})"

@@ -321,11 +321,12 @@ class ObjectTracker:
         self.live[oid] = _Live(refs, pts, extent(pts), t, self.live[oid].rms if oid in self.live else [])
 
     def _predict(self, oid: int, mask: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float) -> torch.Tensor:
-        """Constant velocity (from the last two observations, when they were no more than
-        ``max_gap_s`` apart); after a gap that pose moved so the last observed points' centre lands
-        on the centre of this observation (the rotation still carried on at the last rate), then
-        centred by the stored view nearest the predicted side (:func:`centred_on`: the last view may
-        have been a sliver at the border, whose centre is not the centre of a whole view)."""
+        """Constant velocity: the track's last two observations carried on (``pose_at``), when the
+        object was seen within ``max_gap_s`` or those two were no more than that apart; else its
+        last pose. After a gap that pose is moved so the last observed points' centre lands on the
+        centre of this observation, which only picks the stored view nearest the predicted side;
+        that view then centres it (:func:`centred_on`: the last view may have been a sliver at the
+        border, whose centre is not the centre of a whole view)."""
         track, live = self.tracks[oid], self.live.get(oid)
         recent = live is not None and t - live.last_time <= self.cfg.max_gap_s
         # Just seen: carried on at the track's last velocity, across a gap if it had one (held still it
@@ -337,8 +338,8 @@ class ObjectTracker:
             centre_now = world_points(mask, depth, self.K, T_wc).mean(0)
             T[:3, 3] += centre_now - transform_points(T, live.points.mean(0, keepdim=True))[0]
             if live.references:
-                T = centred_on(T, pick_reference(live.references, camera_in_object(T, T_wc), REUSE_ANGLE_DEG), centre_now, T_wc[:3, :3],
-                              None if track.box is None else track.box.mean(0))
+                ref = pick_reference(live.references, camera_in_object(T, T_wc), REUSE_ANGLE_DEG)
+                T = centred_on(T, ref, centre_now, T_wc[:3, :3], track.middle)
         return T
 
     def _steady(self, oid: int) -> bool:
