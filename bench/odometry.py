@@ -49,7 +49,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--levels", type=int, default=3)
     p.add_argument("--iterations", type=int, default=OdometryConfig.max_iterations)
     p.add_argument("--robust", choices=("huber", "cauchy"), default="huber")
-    p.add_argument("--max-points", type=int, default=OdometryConfig.max_points, help="per level (0 = all)")
+    p.add_argument("--max-points", type=int, default=OdometryConfig.max_points, help="finest level (0 = all)")
+    p.add_argument("--coarse-points-ratio", type=float, default=OdometryConfig.coarse_points_ratio,
+                   help="each coarser level takes this many times fewer points")
     p.add_argument("--outlier-sigmas", type=float, default=OdometryConfig.outlier_sigmas)
     p.add_argument("--no-brightness-offset", action="store_true")
     p.add_argument("--photometric-weight", type=float, default=OdometryConfig.photometric_weight)
@@ -95,6 +97,7 @@ def run(args: argparse.Namespace) -> dict[str, float]:
     cfg = OdometryConfig(
         levels=args.levels, max_iterations=args.iterations, photometric=not args.no_photometric,
         geometric=not args.no_geometric, robust=args.robust, max_points=args.max_points,
+        coarse_points_ratio=args.coarse_points_ratio,
         outlier_sigmas=args.outlier_sigmas, brightness_offset=not args.no_brightness_offset,
         tol_pixels=args.tol_pixels, photometric_weight=args.photometric_weight, geometric_scale=args.geometric_scale,
     )

@@ -167,8 +167,10 @@ class OdometryConfig(Settings):
     usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than
     this many of its pixels (|w|·f + |v|·f/z̄, z̄ the median depth); stall_pixels: or by less than this
     without shrinking. damping: Levenberg–Marquardt λ relative to diag(H). max_points: at most about
-    this many current pixels per level (every k-th pixel on both axes; 0 = all): past a few ten thousand
-    the estimate is limited by systematic errors, not by the count. inlier_sigmas: a usable pair is an inlier when
+    this many current pixels at the finest level (every k-th pixel on both axes; 0 = all): past a few ten
+    thousand the estimate is limited by systematic errors, not by the count. coarse_points_ratio: each
+    coarser level takes this many times fewer (level l: max_points / ratio^l), since a coarse level only
+    has to bring the pose into the finer level's basin (1 = the same cap at every level). inlier_sigmas: a usable pair is an inlier when
     its depth difference is within this many σ_pair of the sensor model (absolute, so it measures the
     alignment, not the adaptive scale). min_correspondences, min_overlap, min_inlier_ratio,
     max_pose_std: thresholds of :attr:`OdometryResult.ok`.
@@ -195,6 +197,7 @@ class OdometryConfig(Settings):
     stall_pixels: float = setting(0.25, ge=0)
     damping: float = setting(1e-4, ge=0)
     max_points: int = setting(20000, ge=0)
+    coarse_points_ratio: float = setting(2.0, ge=1)
     inlier_sigmas: float = setting(3.0, gt=0)
     min_correspondences: int = setting(64, ge=6)
     min_overlap: float = setting(0.3, ge=0, le=1)

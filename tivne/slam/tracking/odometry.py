@@ -105,9 +105,9 @@ def _in_image(uv: torch.Tensor, z: torch.Tensor, shape: tuple[int, ...], min_dep
     return (z > min_depth) & (uv[0] >= 1) & (uv[0] <= w - 2) & (uv[1] >= 1) & (uv[1] <= h - 2)
 
 
-def _source(level: PyramidLevel, max_points: int, T_rgb_depth: torch.Tensor | None, min_depth: float) -> _Source:
+def _source(level: PyramidLevel, max_points: float, T_rgb_depth: torch.Tensor | None, min_depth: float) -> _Source:
     sel = level.usable
-    stride = math.ceil(math.sqrt(int(sel.sum()) / max_points)) if max_points > 0 else 1
+    stride = math.ceil(math.sqrt(int(sel.sum()) / max(max_points, 1.0))) if max_points > 0 else 1
     if stride > 1:
         grid = torch.zeros_like(sel)
         grid[::stride, ::stride] = True
@@ -334,7 +334,7 @@ def track_pyramids(
     cur_rgb_depth = None if cur_rgb_depth is None else cur_rgb_depth.to(device, torch.float64)
     iterations, converged, lin, n_src = [], False, None, 0
     for level in reversed(range(min(len(ref), len(cur), config.levels))):
-        src = _source(cur[level], config.max_points, cur_rgb_depth, config.min_depth)
+        src = _source(cur[level], config.max_points / config.coarse_points_ratio**level, cur_rgb_depth, config.min_depth)
         T, its, converged, lin = _track_level(ref[level], src, T, A, config, prior)
         iterations.append(its)
         n_src = src.points.shape[1]
