@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -37,12 +39,23 @@ from tivne.slam.keyframes import KeyframePolicy, KeyframeStore, view_from_state,
 from tivne.slam.mapping import Mapper, final_pass
 from tivne.slam.objects import ObjectTracker
 from tivne.slam.state import FrameReport, Timers
-from tivne.slam.tracking import Tracker
+from tivne.slam.tracking import Tracker, TrackingCounts, TrackResult
 from tivne.slam.tracking.field import frozen
 from tivne.slam.trajectory import PoseBook, Trajectory
 
 if TYPE_CHECKING:  # gtsam is optional: the graph's module is imported only where it is built
     from tivne.slam.backend.posegraph import KeyframePoseGraph
+
+
+@dataclass(frozen=True)
+class _Ahead:
+    """The next frame, tracked in the worker while the current one was mapped: its timestamp, mask
+    and result, and the tracker's counts before it."""
+
+    timestamp: float
+    mask: torch.Tensor | None
+    result: TrackResult
+    counts: TrackingCounts
 
 
 class SlamLoop:
@@ -77,6 +90,8 @@ class SlamLoop:
         self.generator = torch.Generator().manual_seed(seed)
         self.final_pass_done = False
         self.between_frames = True  # the state is whole (a checkpoint of it can be resumed)
+        self._ahead: _Ahead | None = None  # the next frame, tracked while this one was mapped
+        self._worker: ThreadPoolExecutor | None = None
 
     @property
     def device(self) -> torch.device:
@@ -90,24 +105,28 @@ class SlamLoop:
         return len(self.trajectory)
 
     # ---- one frame -----------------------------------------------------------------------------
-    def step(self, frame: Frame) -> FrameReport:
-        """Process the next frame of the stream."""
+    def step(self, frame: Frame, next_frame: Frame | None = None) -> FrameReport:
+        """Process the next frame of the stream. ``next_frame``, the one after it (optional): where
+        :attr:`overlaps` it is tracked in a worker thread while this frame is mapped, and the next
+        ``step`` (which must get that frame) takes the result; the figures are those of a plain step."""
         self.between_frames = False
         start = time.perf_counter()
         k = len(self.trajectory)
         if self.clock is None:
             self.clock = Clock(float(frame.timestamp), self.field.time_scale)
         tau = self.clock.tau(frame.timestamp)
-        # Post-tracking providers lend tracking a prediction (their previous mask) meanwhile.
-        mask = self.masks.predict(frame) if self.masks.needs_tracked_pose else self.masks(frame, None)
-        result = self.tracker.track(k, frame, tau, mask, self.field, self.poses, self.K, self.last_mapped_tau, self.generator)
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None and ahead.timestamp != float(frame.timestamp):
+            raise ValueError(f"SlamLoop.step: got the frame at t={float(frame.timestamp):.6f}s, but the previous step was "
+                             f"given the frame at t={ahead.timestamp:.6f}s as next_frame (and has tracked it)")
+        mask, result = (ahead.mask, ahead.result) if ahead is not None else self._track(k, frame, tau)
         view = View(k, tau, frame.rgb, frame.depth, mask, result.pose)
         keyframe = new_reference = False
         mapping, objects, correction = None, (), None
         if not result.lost:  # a frame whose pose is not known is never mapped
-            view, keyframe, new_reference, mapping, correction, objects = self._integrate(k, view, frame, result)
-        latest = self.keyframes.frame_ids()[-1]
-        self.trajectory.append(frame.timestamp, view.pose, latest, self.keyframes.pose(latest), frame.gt_pose)
+            view, keyframe, new_reference, mapping, correction, objects = self._integrate(k, view, frame, result, next_frame)
+        if len(self.trajectory) == k:  # not yet recorded before its mapping round (see _integrate)
+            self._record(frame, view)
         if not result.lost:
             self.last_view = None if keyframe else view
         elapsed = time.perf_counter() - start
@@ -116,9 +135,45 @@ class SlamLoop:
         return FrameReport(k, float(frame.timestamp), tau, result, view, keyframe, new_reference, mapping, elapsed,
                            self.field.grid.num_voxels, objects, correction)
 
-    def _integrate(self, k: int, view: View, frame: Frame, result) -> tuple[View, bool, bool, Any, Correction | None, tuple]:
+    def _track(self, k: int, frame: Frame, tau: float) -> tuple[torch.Tensor | None, Any]:
+        """The frame's motion mask for tracking and its :class:`TrackResult`."""
+        # Post-tracking providers lend tracking a prediction (their previous mask) meanwhile.
+        mask = self.masks.predict(frame) if self.masks.needs_tracked_pose else self.masks(frame, None)
+        return mask, self.tracker.track(k, frame, tau, mask, self.field, self.poses, self.K, self.last_mapped_tau, self.generator)
+
+    def _record(self, frame: Frame, view: View) -> None:
+        latest = self.keyframes.frame_ids()[-1]
+        self.trajectory.append(frame.timestamp, view.pose, latest, self.keyframes.pose(latest), frame.gt_pose)
+
+    @property
+    def overlaps(self) -> bool:
+        """Whether the next frame may be tracked while this one is mapped: ``tracking.overlap``, a
+        tracker that does not read the map (``tracking.method=odometry``) and mapping that moves no
+        pose (``mapping.optimize_poses`` off), so the order of the two changes nothing."""
+        return self.tracker.cfg.overlap and self.tracker.cfg.method == "odometry" and not self.mapper.cfg.optimize_poses
+
+    def _track_ahead(self, k: int, frame: Frame, view: View, next_frame: Frame) -> Future:
+        """Start tracking ``next_frame`` (stream index k + 1) in the worker thread; frame k is
+        recorded first (its pose is final: mapping will not move it) and is the odometry reference
+        if it became one."""
+        self._record(frame, view)
+        counts = dataclasses.replace(self.tracker.counts)  # a checkpoint before the next step must not count it
+        tau, threads = self.clock.tau(next_frame.timestamp), self.tracker.cfg.overlap_threads
+
+        def work() -> _Ahead:
+            torch.set_num_threads(threads)  # this thread's own OpenMP team: the map keeps the main one
+            mask, result = self._track(k + 1, next_frame, tau)
+            return _Ahead(float(next_frame.timestamp), mask, result, counts)
+
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tivne-track")
+        return self._worker.submit(work)
+
+    def _integrate(
+        self, k: int, view: View, frame: Frame, result, next_frame: Frame | None = None
+    ) -> tuple[View, bool, bool, Any, Correction | None, tuple]:
         """Everything after a successful track: the mask, the objects, keyframes, mapping, voxels,
-        the odometry reference."""
+        the odometry reference (and, where it overlaps the mapping round, the next frame's track)."""
         K = self.K
         if self.masks.needs_tracked_pose:
             with frozen(self.field), torch.no_grad():
@@ -138,8 +193,12 @@ class SlamLoop:
             if self.backend is not None:
                 correction = self._correct_poses()
                 view = dataclasses.replace(view, pose=self.keyframes.pose(k).to(view.pose.dtype))
-        mapping = None
-        if k == 0 or k % self.mapper.cfg.every == 0:
+        mapping, ahead, new_reference = None, None, False
+        maps = k == 0 or k % self.mapper.cfg.every == 0
+        if maps and next_frame is not None and self.overlaps:
+            new_reference = self.tracker.update_reference(view, K, result, keyframe)
+            ahead = self._track_ahead(k, frame, view, next_frame)
+        if maps:
             mapping = self.mapper.map_frame(view, self.keyframes, self.policy, K, self.generator, first=k == 0)
             self.keyframes.update_poses(mapping.poses)
             if k in mapping.poses:
@@ -147,7 +206,10 @@ class SlamLoop:
             self.last_mapped_tau = view.tau
         if k > 0:
             self.allocator.allocate(self.field, view, K)
-        new_reference = self.tracker.update_reference(view, K, result, keyframe)
+        if ahead is None:
+            new_reference = self.tracker.update_reference(view, K, result, keyframe)
+        else:
+            self._ahead = ahead.result()
         return view, keyframe, new_reference, mapping, correction, objects
 
     def _correct_poses(self) -> Correction:
@@ -198,7 +260,8 @@ class SlamLoop:
             "mapper": self.mapper.state_dict(),
             "keyframes": self.keyframes.state_dict(),
             "trajectory": self.trajectory.state_dict(),
-            "tracker": self.tracker.state_dict(),
+            # a next frame tracked ahead is tracked again after a resume: its counts are not saved
+            "tracker": self.tracker.state_dict() | ({} if self._ahead is None else {"counts": dataclasses.asdict(self._ahead.counts)}),
             "masks": self.masks.state_dict(),
             "last_view": None if self.last_view is None else view_state(self.last_view),
             "timers": dataclasses.asdict(self.timers),
@@ -209,6 +272,7 @@ class SlamLoop:
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Continue from :meth:`state_dict` (tensors on this loop's device; the field loaded first)."""
+        self._ahead = None
         self.mapper.load_state_dict(state["mapper"])  # after the field: E has its saved rows
         self.keyframes.load_state_dict(state["keyframes"])
         self.trajectory.load_state_dict(state["trajectory"])

@@ -30,6 +30,7 @@ class TivNeSLAM(L.LightningModule):
         self.field = loop.field  # registered: Lightning moves the map to the device
         self.resume_payload: dict[str, Any] | None = None  # restored once the module is on its device
         self.pending_rng: dict[str, Any] | None = None  # set just before the next frame
+        self.held: Frame | None = None  # the latest frame from the stream, processed at the next step
 
     def configure_optimizers(self):
         return self.loop.mapper.optimizer  # registered so Lightning knows the map's optimiser
@@ -57,15 +58,26 @@ class TivNeSLAM(L.LightningModule):
 
     # ---- the per-frame loop -----------------------------------------------------------------------
     def training_step(self, frame: Frame, batch_idx: int) -> None:
+        # One frame behind the stream: the frame that arrives is the next one of the frame processed
+        # now, so the loop can track it while it maps (tracking.overlap). A checkpoint's position
+        # counts processed frames only, so a resumed stream starts at the held one again.
         self._apply_pending_rng()
-        with deferred_interrupts():  # SIGINT / SIGTERM take effect once the frame is whole
-            report = self.loop.step(frame)
-            self.writer.after_frame(self.loop, report)
-        self.log_report(report)
+        held, self.held = self.held, frame
+        if held is not None:
+            self._step(held, frame)
+        trainer = self._trainer
+        if trainer is not None and batch_idx + 1 >= trainer.num_training_batches:
+            self.flush()  # the stream's last frame, while the Trainer still takes self.log
 
-    def log_report(self, report: FrameReport) -> None:
+    def _step(self, frame: Frame, next_frame: Frame | None, progress: bool = True) -> None:
+        with deferred_interrupts():  # SIGINT / SIGTERM take effect once the frame is whole
+            report = self.loop.step(frame, next_frame)
+            self.writer.after_frame(self.loop, report)
+        self.log_report(report, progress)
+
+    def log_report(self, report: FrameReport, progress: bool = True) -> None:
         """Per-frame scalars (against the frame index), every 10th frame the ATE so far, every
-        ``image_every`` frames the renders."""
+        ``image_every`` frames the renders; ``progress``: fps and ATE to the progress bar too."""
         k, scalars = report.index, report.scalars()
         ate = self.loop.ate() if k % 10 == 0 else None
         if ate is not None:
@@ -78,12 +90,21 @@ class TivNeSLAM(L.LightningModule):
             if self.image_every and k % self.image_every == 0:
                 for name, img in render_panels(self.loop, report.view, stride=2).items():
                     logger.add_image(f"render/{name}", img, k, dataformats="HWC")
+        if not progress:
+            return
         self.log("fps", 1.0 / max(report.seconds, 1e-6), prog_bar=True, on_step=True, batch_size=1)
         if ate is not None:
             self.log("ate_cm", 100 * float(ate.rmse), prog_bar=True, on_step=True, batch_size=1)
 
+    def flush(self, progress: bool = True) -> None:
+        """Process the held frame now, with no next frame (the end of a stream)."""
+        held, self.held = self.held, None
+        if held is not None:
+            self._step(held, None, progress)
+
     def on_train_end(self) -> None:
         self._apply_pending_rng()
+        self.flush(progress=False)  # a stream of unknown length ends here (Lightning takes no self.log now)
         self.writer.finish(self.loop, getattr(self.logger, "experiment", None) if self.logger is not None else None)
 
 

@@ -30,6 +30,7 @@ def feed(system, frames, start: int) -> None:
         warnings.simplefilter("ignore")  # self.log without a Trainer
         for k, frame in enumerate(frames, start):
             system.training_step(frame, k)
+        system.flush()  # the module runs one frame behind the stream: the segment's last frame too
 
 
 @pytest.fixture
