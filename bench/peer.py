@@ -109,8 +109,8 @@ def open3d_on_config(overrides: list[str], threads: int) -> tuple[dict | None, s
     """Open3D on the frames of a TivNe config, in its own process (its own RSS, its own threads)."""
     try:
         import open3d  # noqa: F401
-    except ImportError:
-        return None, "open3d is not installed (pip install open3d-cpu)"
+    except ImportError as exc:  # absent, or present without a system library it loads (e.g. libusb-1.0)
+        return None, f"open3d does not import ({exc}; pip install open3d-cpu, and its system libraries)"
     return spawn([sys.executable, __file__, *overrides], threads)
 
 
