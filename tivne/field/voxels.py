@@ -9,6 +9,7 @@ sorted, so membership and lookup are ``torch.searchsorted`` (no preset scene bou
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 _BITS = 21
@@ -316,8 +317,9 @@ class SparseVoxelGrid(nn.Module):
         rows = self.voxel_corner_rows[pos[valid]]  # (Pv, 8)
         frac = g[valid] - base[valid]
         w = trilinear_weights(frac)  # (Pv, 8)
-        emb = self.embeddings[rows]  # (Pv, 8, Q)
-        return (emb * w[..., None]).sum(dim=1), valid
+        # One kernel for gather, weights and sum, and a backward that adds rows into E's gradient:
+        # 2-3x faster on CPU than E[rows] (whose backward is an accumulating index_put).
+        return F.embedding_bag(rows, self.embeddings, mode="sum", per_sample_weights=w.to(self.embeddings.dtype)), valid
 
     def load_sparse_state(self, state: dict[str, torch.Tensor]) -> None:
         """Load a state dict whose tensors may be larger than this (fresh) grid's."""
