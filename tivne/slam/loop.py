@@ -4,7 +4,9 @@ the LightningModule (:mod:`tivne.slam.system`) adapts it to a Trainer, :mod:`tiv
 writes what it holds, and a plain ``for frame in frames: loop.step(frame)`` runs it too.
 
 One frame: masks -> track -> (mask after tracking, revise keyframe masks) -> keyframe -> map ->
-allocate -> record. Each component owns its settings and its state:
+allocate -> record. Given the next frame too (``step(frame, next_frame)``), the next frame's mask
+and track run in a worker thread during this frame's mapping round where that changes nothing
+(:attr:`SlamLoop.overlaps`). Each component owns its settings and its state:
 
     clock       Clock: the one conversion of timestamps to field time τ (set by the first frame)
     masks       MaskProvider: the motion mask (before or after tracking)
