@@ -137,7 +137,7 @@ class SlamLoop:
         return FrameReport(k, float(frame.timestamp), tau, result, view, keyframe, new_reference, mapping, elapsed,
                            self.field.grid.num_voxels, objects, correction)
 
-    def _track(self, k: int, frame: Frame, tau: float) -> tuple[torch.Tensor | None, Any]:
+    def _track(self, k: int, frame: Frame, tau: float) -> tuple[torch.Tensor | None, TrackResult]:
         """The frame's motion mask for tracking and its :class:`TrackResult`."""
         # Post-tracking providers lend tracking a prediction (their previous mask) meanwhile.
         mask = self.masks.predict(frame) if self.masks.needs_tracked_pose else self.masks(frame, None)
