@@ -126,6 +126,12 @@ class TrackingConfig(Settings):
     overlap: bool = True
     overlap_threads: int = setting(1, ge=1)
 
+    @property
+    def reads_map(self) -> bool:
+        """Whether tracking reads the map (the field tracker alone or after the odometry): then the
+        first frame's map is whole before frame 1, and no track overlaps a mapping round."""
+        return self.method != "odometry"
+
 
 @dataclass(frozen=True)
 class FieldTrackingConfig(Settings):

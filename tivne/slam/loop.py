@@ -152,7 +152,7 @@ class SlamLoop:
         """Whether the next frame may be tracked while this one is mapped: ``tracking.overlap``, a
         tracker that does not read the map (``tracking.method=odometry``) and mapping that moves no
         pose (``mapping.optimize_poses`` off), so the order of the two changes nothing."""
-        return self.tracker.cfg.overlap and self.tracker.cfg.method == "odometry" and not self.mapper.cfg.optimize_poses
+        return self.tracker.cfg.overlap and not self.tracker.cfg.reads_map and not self.mapper.cfg.optimize_poses
 
     def _track_ahead(self, k: int, frame: Frame, view: View, next_frame: Frame) -> Future:
         """Start tracking ``next_frame`` (stream index k + 1) in the worker thread; frame k is

@@ -117,7 +117,7 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
     field = build_field(s.field, s.object_field)
     # The next frames' tracking reads the first frame's map unless it is pure odometry: then it gets
     # all its steps at once (mapping.first_now defers them only where nothing waits on them).
-    mapping = s.mapping if s.tracking.method == "odometry" else replace(s.mapping, first_now=s.mapping.first_iters)
+    mapping = replace(s.mapping, first_now=s.mapping.first_iters) if s.tracking.reads_map else s.mapping
     mapper = Mapper(field, mapping, PixelSampler(s.sampler), s.render, s.loss)
     attach_optimizer(field, mapper.optimizer, s.mapping)  # field=objects: object fields join the map optimiser
     loop = SlamLoop(

@@ -116,7 +116,7 @@ class Tracker:
         result = self._track(View(index, query, frame.rgb, frame.depth, mask, previous[-1]), previous, poses, field, K, generator)
         self.counts.seconds += time.perf_counter() - start
         self.counts.frames += 1
-        self.counts.field_iters += self.field_cfg.iters if self.cfg.method != "odometry" else 0
+        self.counts.field_iters += self.field_cfg.iters if self.cfg.reads_map else 0
         self.counts.recovered += int(result.status is TrackStatus.RECOVERED)
         if result.status is TrackStatus.LOST:
             self.counts.lost += 1
