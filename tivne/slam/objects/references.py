@@ -25,6 +25,7 @@ class Reference:
     points: torch.Tensor | None = None
 
 
+
 def view_direction(C: torch.Tensor) -> torch.Tensor:
     """(3,) unit direction from the object origin to the camera of camera-to-object pose C (4, 4)."""
     return C[:3, 3] / C[:3, 3].norm().clamp_min(1e-9)
@@ -44,6 +45,25 @@ def pick_reference(references: list[Reference], C_pred: torch.Tensor, max_angle_
         if cos >= cos_max and 0.8 <= ratio <= 1.25:
             return ref
     return references[max(range(len(references)), key=lambda i: (cosines[i], i))]
+
+
+def add_reference(references: list[Reference], new: Reference, limit: int) -> list[Reference]:
+    """``references`` (oldest first) with ``new`` appended, at most ``limit`` kept: beyond it, of the
+    two views nearest in direction the newer goes (``new`` too, when an older view saw its side), so
+    the stored views keep covering every side seen, the oldest always among them: a turning object
+    is aligned to its first views again after a whole turn, which ends the drift of the chain in
+    between (keeping the newest only, a turn outlives its first views), and of two views of one side
+    the older, less drifted one stays. Views from distances more than 25 % apart count as far apart."""
+    refs = [*references, new]
+    while len(refs) > max(limit, 1):
+        dirs = torch.stack([view_direction(r.C) for r in refs])
+        dist = torch.stack([r.C[:3, 3].norm() for r in refs]).double()
+        ratio = dist[:, None] / dist[None, :].clamp_min(1e-9)
+        # Views from other distances (outside pick_reference's range) are not the same view.
+        similar = (dirs @ dirs.T).double() - 4.0 * ((ratio < 0.8) | (ratio > 1.25)).double()
+        similar = similar.tril(-1) - 8.0 * torch.ones_like(similar).triu()  # row j: the older views only
+        refs.pop(1 + int(similar[1:].max(1).values.argmax()))
+    return refs
 
 
 def shows_enough(pixels: int, distance: float, ref: Reference, share: float = 0.5) -> bool:

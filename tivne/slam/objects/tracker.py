@@ -43,18 +43,26 @@ from tivne.slam.objects.instances import (
 )
 from tivne.slam.objects.motion import camera_in_object, centred_information, object_pose, odometry_init
 from tivne.slam.objects.reacquire import reacquire
-from tivne.slam.objects.references import REUSE_ANGLE_DEG, Reference, centred_on, pick_reference, shows_enough
+from tivne.slam.objects.references import (
+    REUSE_ANGLE_DEG,
+    Reference,
+    add_reference,
+    centred_on,
+    pick_reference,
+    shows_enough,
+)
 from tivne.slam.objects.track import ObjectTrack
 from tivne.slam.outputs import RunDir
 from tivne.slam.tracking.odometry import OdometryResult, PosePrior, frame_pyramid, track_pyramids
-from tivne.slam.tracking.pyramid import PyramidLevel
+from tivne.slam.tracking.pyramid import PyramidLevel, crop_pyramid
 
 # A track is written once it has this many observed poses (one-frame segments are clutter).
 MIN_WRITTEN_POSES = 3
 # The least share of an object's pixels its reference must see for a pose to count.
 MIN_OVERLAP = 0.1
-# Keyframe observations kept per object (the oldest goes first).
-MAX_REFERENCES = 12
+# Keyframe observations kept per object: enough for views REUSE_ANGLE_DEG apart all around one
+# axis (beyond it the most redundant view goes, see add_reference).
+MAX_REFERENCES = 32
 # Alignments whose photometric RMS makes an object's typical residual (re-acquisition's yardstick).
 RMS_HISTORY = 20
 
@@ -317,7 +325,7 @@ class ObjectTracker:
             self.tracks[oid].grow_box(torch.stack([lo, hi]))
         refs = list(self.live[oid].references) if oid in self.live else []
         if pyramid is not None:
-            refs = (refs + [Reference(pyramid, C, tau, int(mask.sum()), pts)])[-MAX_REFERENCES:]
+            refs = add_reference(refs, Reference(crop_pyramid(pyramid, mask), C, tau, int(mask.sum()), pts), MAX_REFERENCES)
         self.live[oid] = _Live(refs, pts, extent(pts), t, self.live[oid].rms if oid in self.live else [])
 
     def _predict(self, oid: int, mask: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float) -> torch.Tensor:

@@ -176,3 +176,27 @@ def build_pyramid(
         dynamic = downsample_mask(dynamic)
         out.append(_level(K, intensity, depth, dynamic, depth_range, depth_sigma))
     return out
+
+
+def crop_pyramid(levels: list[PyramidLevel], keep: torch.Tensor, margin: int = 4) -> list[PyramidLevel]:
+    """The pyramid cut to the box around the finest level's ``keep`` (H, W) bool pixels plus ``margin``
+    pixels, each level's K moved by its offset (the same pixels, camera rays and values: a view of
+    one object stored as a reference holds its box, not the whole image). The box corners are
+    multiples of 2^(levels-1), so coarse pixel u still covers fine pixels 2u, 2u + 1. Unchanged
+    when ``keep`` is empty."""
+    rows, cols = torch.nonzero(keep.any(1)).flatten(), torch.nonzero(keep.any(0)).flatten()
+    if not len(rows):
+        return levels
+    step = 2 ** (len(levels) - 1)
+    h, w = keep.shape
+    y0, x0 = max(0, int(rows[0]) - margin) // step * step, max(0, int(cols[0]) - margin) // step * step
+    y1, x1 = min(h, -(-(int(rows[-1]) + 1 + margin) // step) * step), min(w, -(-(int(cols[-1]) + 1 + margin) // step) * step)
+    out = []
+    for i, lv in enumerate(levels):
+        a, b, c, d = y0 >> i, y1 >> i, x0 >> i, x1 >> i
+        K = lv.K.clone()
+        K[0, 2] -= c
+        K[1, 2] -= a
+        out.append(PyramidLevel(K, lv.intensity[a:b, c:d].clone(), lv.warp_image[..., a:b, c:d].clone(),
+                                lv.geometry[:, a:b, c:d].clone(), lv.usable[a:b, c:d].clone()))
+    return out

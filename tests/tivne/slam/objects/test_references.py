@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
-from tivne.slam.objects.references import Reference, centred_on, pick_reference, shows_enough
+from tivne.slam.objects.references import Reference, add_reference, centred_on, pick_reference, shows_enough
 
 
 def _camera_at(position) -> torch.Tensor:
@@ -15,6 +17,29 @@ def _camera_at(position) -> torch.Tensor:
 
 def _reference(position, pixels=1000, tau=0.0) -> Reference:
     return Reference([], _camera_at(position), tau, pixels)
+
+
+def _around(deg: float) -> tuple[float, float, float]:
+    """A camera position on the unit circle about the object's z axis, ``deg`` from +x."""
+    return (math.cos(math.radians(deg)), math.sin(math.radians(deg)), 0.0)
+
+
+def test_stored_views_keep_covering_every_side_of_a_turning_object():
+    # An object turning at 10 degrees per new view: past the limit the newer of the two views
+    # nearest in direction goes, never the first; a second turn adds nothing new, so the first
+    # turn's views (least drifted) are all kept, one per side.
+    refs: list[Reference] = []
+    for k in range(72):
+        refs = add_reference(refs, _reference(_around(10.0 * k), tau=float(k)), 36)
+    assert [r.tau for r in refs] == [float(k) for k in range(36)]
+    # Fewer views than sides: the first stays, the kept ones spread over the sides seen (the oldest
+    # N would leave all but the first 110 degrees, the newest N the first side, uncovered).
+    few: list[Reference] = []
+    for k in range(24):
+        few = add_reference(few, _reference(_around(10.0 * k), tau=float(k)), 12)
+    sides = sorted(round(math.degrees(math.atan2(float(r.C[1, 3]), float(r.C[0, 3])))) % 360 for r in few)
+    assert len(few) == 12 and few[0].tau == 0.0 and sides[-1] >= 220
+    assert max(b - a for a, b in zip(sides, sides[1:])) <= 30
 
 
 def test_a_view_shows_enough_by_pixels_scaled_to_its_distance():

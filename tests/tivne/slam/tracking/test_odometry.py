@@ -10,7 +10,15 @@ import torch
 from data_modules.synthetic import SyntheticSequence
 from tivne.geometry import backproject, invert_pose, se3_exp, se3_step
 from tivne.slam.tracking.odometry import OdometryConfig, PosePrior, frame_pyramid, normal_equations, rgbd_odometry, track_pyramids
-from tivne.slam.tracking.pyramid import build_pyramid, downsample_depth, downsample_K, downsample_mask, image_gradients, vertex_normals
+from tivne.slam.tracking.pyramid import (
+    build_pyramid,
+    crop_pyramid,
+    downsample_depth,
+    downsample_K,
+    downsample_mask,
+    image_gradients,
+    vertex_normals,
+)
 from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale
 
 W, H = 160, 120
@@ -180,6 +188,26 @@ def test_pyramid_shapes_intrinsics_and_invalid_depth(room):
     d = torch.tensor([[1.0, 0.0, 3.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 1.0, 0.0, 0.0]])
     assert torch.allclose(downsample_depth(d), torch.tensor([[1.0, 1.0, 0.0]]))
     assert downsample_mask(torch.tensor([[True, False], [False, False]])).tolist() == [[True]]
+
+
+def test_a_reference_cut_to_its_object_aligns_as_the_whole_image(room):
+    # A stored view of one object keeps its box only: same pixels, rays and values at every level,
+    # so aligning the moving cube to it gives the same pose as to the whole image.
+    P, dT = close_up(room, 0.0, 0.0, 1.2), motion(9, 0.01, 2.0)
+    (rgb0, d0, m0), (rgb1, d1, m1) = view(room, P), view(room, P @ dT)
+    K, cfg = room.intrinsics.K(), OdometryConfig()
+    ref, cur = frame_pyramid(rgb0, d0, K, cfg, ~m0), frame_pyramid(rgb1, d1, K, cfg, ~m1)
+    cut = crop_pyramid(ref, m0)
+    assert cut[0].intensity.numel() < 0.8 * ref[0].intensity.numel()
+    rows, cols = torch.nonzero(m0.any(1)).flatten(), torch.nonzero(m0.any(0)).flatten()
+    for level, (lv, whole) in enumerate(zip(cut, ref)):  # the object's pixels are all kept, with their rays
+        assert int(lv.usable.sum()) == int(whole.usable.sum())
+        y, x = int(rows[0]) // 2**level, int(cols[0]) // 2**level
+        a, b = int(whole.K[1, 2] - lv.K[1, 2]), int(whole.K[0, 2] - lv.K[0, 2])
+        assert torch.equal(lv.geometry[:, y - a, x - b], whole.geometry[:, y, x])
+    full, part = track_pyramids(ref, cur, None, cfg), track_pyramids(cut, cur, None, cfg)
+    assert part.ok and torch.allclose(part.T_ref_cur, full.T_ref_cur, atol=1e-6)  # float32 sums in another order
+    assert crop_pyramid(ref, torch.zeros_like(m0)) is ref  # nothing to keep: unchanged
 
 
 def test_gradients_and_normals_of_known_surfaces():
