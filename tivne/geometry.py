@@ -133,6 +133,15 @@ def skew(t: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.stack([z, -t[2], t[1]]), torch.stack([t[2], z, -t[0]]), torch.stack([-t[1], t[0], z])])
 
 
+def adjoint_vw(T: torch.Tensor) -> torch.Tensor:
+    """(6, 6) adjoint of a (4, 4) rigid transform for twists ordered (v, w): Ad = [[R, [t]× R], [0, R]],
+    so that T · exp(ξ) · T⁻¹ = exp(Ad ξ)."""
+    R, t = T[:3, :3], T[:3, 3]
+    Ad = torch.zeros(6, 6, dtype=T.dtype, device=T.device)
+    Ad[:3, :3], Ad[:3, 3:], Ad[3:, 3:] = R, skew(t) @ R, R
+    return Ad
+
+
 def se3_exp(xi: torch.Tensor) -> torch.Tensor:
     """SE(3) exponential map.
 

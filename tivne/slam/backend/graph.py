@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from tivne.geometry import skew
+from tivne.geometry import adjoint_vw
 from tivne.settings import ConfigError
 
 GRAPH_MISSING = "backend.method=graph needs gtsam, which is not installed: pip install 'tivne[graph]' (or pip install gtsam)"
@@ -30,14 +30,6 @@ def require_gtsam():
     except ImportError:
         raise ConfigError(GRAPH_MISSING) from None
     return gtsam
-
-
-def adjoint_vw(T: torch.Tensor) -> torch.Tensor:
-    """(6, 6) adjoint of a (4, 4) rigid transform for twists ordered (v, w): Ad = [[R, [t]× R], [0, R]]."""
-    R, t = T[:3, :3], T[:3, 3]
-    Ad = torch.zeros(6, 6, dtype=T.dtype)
-    Ad[:3, :3], Ad[:3, 3:], Ad[3:, 3:] = R, skew(t) @ R, R
-    return Ad
 
 
 def left_to_gtsam_information(H: torch.Tensor, T: torch.Tensor) -> torch.Tensor:

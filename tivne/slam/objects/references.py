@@ -47,6 +47,23 @@ def pick_reference(references: list[Reference], C_pred: torch.Tensor, max_angle_
     return references[max(range(len(references)), key=lambda i: (cosines[i], i))]
 
 
+def companions(references: list[Reference], ref: Reference, C_pred: torch.Tensor, max_angle_deg: float, count: int) -> list[Reference]:
+    """Up to ``count`` stored views besides ``ref`` that also saw the object from within
+    ``max_angle_deg`` of the predicted view C_pred (4, 4) and from a distance within 25 %, nearest
+    in direction first: aligned jointly with ``ref``, their pixels average out each single view's
+    noise and pose error (a symmetric object's spin rests on its texture, seen a little differently
+    in each view)."""
+    d_pred, dist_pred = view_direction(C_pred), float(C_pred[:3, 3].norm())
+    cos_max = float(np.cos(np.radians(max_angle_deg)))
+    near = []
+    for other in references:
+        cos = float(view_direction(other.C) @ d_pred)
+        ratio = float(other.C[:3, 3].norm()) / max(dist_pred, 1e-9)
+        if other is not ref and cos >= cos_max and 0.8 <= ratio <= 1.25:
+            near.append((-cos, id(other), other))
+    return [other for _, _, other in sorted(near)[:count]]
+
+
 def add_reference(references: list[Reference], new: Reference, limit: int) -> list[Reference]:
     """``references`` (oldest first) with ``new`` appended, at most ``limit`` kept: beyond it, of the
     two views nearest in direction the newer goes (``new`` too, when an older view saw its side), so

@@ -48,6 +48,7 @@ from tivne.slam.objects.references import (
     Reference,
     add_reference,
     centred_on,
+    companions,
     pick_reference,
     shows_enough,
 )
@@ -63,6 +64,8 @@ MIN_OVERLAP = 0.1
 # Keyframe observations kept per object: enough for views REUSE_ANGLE_DEG apart all around one
 # axis (beyond it the most redundant view goes, see add_reference).
 MAX_REFERENCES = 32
+# Stored views an object's view is aligned to at once (the reference and its nearest companions).
+JOINT_VIEWS = 5
 # Alignments whose photometric RMS makes an object's typical residual (re-acquisition's yardstick).
 RMS_HISTORY = 20
 
@@ -223,11 +226,13 @@ class ObjectTracker:
             ref, res = reacquire(live.references, track, pyramid, T_pred, T_wc, world_points(inner, depth, self.K, T_wc).mean(0),
                                  self.odo, live.typical_rms())
         else:
-            ref = pick_reference(live.references, camera_in_object(T_pred, T_wc), REUSE_ANGLE_DEG)
+            C_pred = camera_in_object(T_pred, T_wc)
+            ref = pick_reference(live.references, C_pred, REUSE_ANGLE_DEG)
             init = odometry_init(T_pred, T_wc, ref.C)
             # The motion prior only once the track has a velocity again (after a gap it holds the last pose).
             prior = self._prior(init, ref.C, t - live.last_time) if self._steady(oid) else None
-            res = track_pyramids(ref.pyramid, pyramid, init, self.odo, prior=prior)
+            also = tuple((o.pyramid, invert_pose(o.C) @ ref.C) for o in companions(live.references, ref, C_pred, 2 * REUSE_ANGLE_DEG, JOINT_VIEWS - 1))
+            res = track_pyramids(ref.pyramid, pyramid, init, self.odo, prior=prior, also=also)
         if not self._good(res):
             if back and len(self.pending.get(oid, [])) < self.cfg.border_wait:  # no anchor from one poor view: try the next
                 self.pending.setdefault(oid, []).append(_Pending(pyramid, mask, T_wc, tau, t, pixels))

@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from data_modules.poses import rotation_vector
 from data_modules.sensor import kinect_depth_sigma
 from tivne.config import OdometryConfig
-from tivne.geometry import invert_pose, project, se3_step
+from tivne.geometry import adjoint_vw, invert_pose, project, se3_step
 from tivne.slam.tracking.pyramid import PyramidLevel, build_pyramid
 from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale, subsample
 
@@ -134,6 +134,7 @@ class _Linearisation:
     num_inliers: int
     rms_photometric: float
     rms_geometric: float
+    scales: tuple[torch.Tensor | None, torch.Tensor | None] = (None, None)  # the robust scales used (photometric, geometric)
 
 
 def _kernel(e: torch.Tensor, cfg: OdometryConfig) -> torch.Tensor:
@@ -164,9 +165,11 @@ def brightness_gain(ref: torch.Tensor, cur: torch.Tensor, valid: torch.Tensor, l
 
 
 def _photometric(
-    ref: PyramidLevel, src: _Source, p: torch.Tensor, uv: torch.Tensor, dp_dz: torch.Tensor, valid: torch.Tensor, cfg: OdometryConfig
+    ref: PyramidLevel, src: _Source, p: torch.Tensor, uv: torch.Tensor, dp_dz: torch.Tensor, valid: torch.Tensor, cfg: OdometryConfig,
+    given: torch.Tensor | None = None,
 ):
-    """Rows (7, N) of :func:`_rows`, normalised weights (N,) (0 where not valid) and IRLS weights (N,).
+    """Rows (7, N) of :func:`_rows`, normalised weights (N,) (0 where not valid), IRLS weights (N,) and
+    the robust scale of the residuals (``given``: that one instead of the residuals' own).
 
     p (3, N) warped points, uv (2, N) their pixels, dp_dz (3, N) their motion per metre of current depth.
     The gradient of I_ref(π(p)) w.r.t. p is g = ∇I·∂π/∂p = (I_u f_x, I_v f_y, −(I_u f_x x + I_v f_y y)/z) / z.
@@ -183,19 +186,20 @@ def _photometric(
     x, y, z = p
     gu, gv = s[1] * (ref.K[0, 0] / z), s[2] * (ref.K[1, 1] / z)
     g = torch.stack([gu, gv, -(gu * x + gv * y) / z])
-    scale = robust_scale(r, cfg.intensity_sigma_min, valid)
+    s_r = robust_scale(r, cfg.intensity_sigma_min, valid) if given is None else given
+    scale = s_r
     if cfg.photometric_depth_noise:
         scale = torch.hypot(scale, (g * dp_dz).sum(0) * kinect_depth_sigma(src.points[2], cfg.depth_sigma))
     rows = _rows(p, g, r)
     wts = _kernel(r / scale, cfg) * valid
-    return rows, wts / scale**2, wts
+    return rows, wts / scale**2, wts, s_r
 
 
 def _geometric(
     n_cur: torch.Tensor, p: torch.Tensor, pd: torch.Tensor, geo: torch.Tensor, valid: torch.Tensor, sigma: torch.Tensor,
-    RA: torch.Tensor | None, cfg: OdometryConfig,
+    RA: torch.Tensor | None, cfg: OdometryConfig, given: torch.Tensor | None = None,
 ):
-    """Point-to-plane rows and weights as :func:`_photometric`.
+    """Point-to-plane rows, weights and the scale factor on σ(z) as :func:`_photometric`.
 
     p (3, N): points in the reference colour frame (the one T_ref_cur maps to), pd = RA p + tA the same in
     the reference depth frame, n_cur (3, N) the current normals rotated into it, geo (7, N) the reference
@@ -205,12 +209,13 @@ def _geometric(
     n = geo[4:7]
     agree = valid & ((n * n_cur).sum(0) >= math.cos(math.radians(cfg.max_normal_angle_deg)))
     r = (n * (pd - geo[1:4])).sum(0)
+    factor = robust_scale(r / sigma, 0.0 if cfg.geometric_scale == "data" else 1.0, agree) if given is None else given
     if cfg.geometric_scale == "data":  # σ(z) shapes the per-pixel weights, the residuals set the overall scale
-        scale = (robust_scale(r / sigma, 0.0, agree) * sigma).clamp_min(cfg.depth_quantum)
+        scale = (factor * sigma).clamp_min(cfg.depth_quantum)
     else:  # ≥ σ: never trusted beyond the sensor model
-        scale = robust_scale(r / sigma, 1.0, agree) * sigma
+        scale = factor * sigma
     wts = _kernel(r / scale, cfg) * agree
-    return _rows(p, n if RA is None else RA.T @ n, r), wts / scale**2, wts
+    return _rows(p, n if RA is None else RA.T @ n, r), wts / scale**2, wts, factor
 
 
 def normal_equations(rows: torch.Tensor, w: torch.Tensor, block: int = 4096) -> tuple[torch.Tensor, torch.Tensor]:
@@ -229,11 +234,13 @@ def normal_equations(rows: torch.Tensor, w: torch.Tensor, block: int = 4096) -> 
 
 
 def _linearise(
-    ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig
+    ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig,
+    scales: tuple[torch.Tensor | None, torch.Tensor | None] = (None, None),
 ) -> _Linearisation:
     """Warp the current points by T (4, 4) into the reference and build the robust normal equations.
 
     A (4, 4) or None: reference colour frame -> reference depth frame (inverse of its T_rgb_depth).
+    scales: the robust scales (photometric, geometric) to use instead of the residuals' own (None).
     Fixed-size (3, N) arrays with zero weights rather than boolean compaction: on CPU a gather is cheap,
     a compaction of every array is not.
     """
@@ -256,19 +263,19 @@ def _linearise(
     dz = ((zd - geo[0]) / sigma).abs()
     valid = usable & (dz <= cfg.outlier_sigmas * robust_scale(dz, 1.0, usable))
     H, g = torch.zeros(6, 6, dtype=torch.float64, device=p.device), torch.zeros(6, dtype=torch.float64, device=p.device)
-    rms = [math.nan, math.nan]
+    rms, used = [math.nan, math.nan], [None, None]
     if cfg.photometric:
         dp_dz = (p - t[:, None]) / src.points[2]  # the current point moves along its ray with its depth
-        rows, w_norm, rms_w = _photometric(ref, src, p, uv, dp_dz, valid, cfg)
+        rows, w_norm, rms_w, used[0] = _photometric(ref, src, p, uv, dp_dz, valid, cfg, scales[0])
         H, g = normal_equations(rows, w_norm * cfg.photometric_weight)
         rms[0] = _weighted_rms(rows[6], rms_w)
     if cfg.geometric:
         n_cur = (R if RA is None else RA @ R) @ src.normals
-        rows, w_norm, rms_w = _geometric(n_cur, p, pd, geo, valid, sigma, RA, cfg)
+        rows, w_norm, rms_w, used[1] = _geometric(n_cur, p, pd, geo, valid, sigma, RA, cfg, scales[1])
         Hk, gk = normal_equations(rows, w_norm)
         H, g, rms[1] = H + Hk, g + gk, _weighted_rms(rows[6], rms_w)
     num_inliers = int((usable & (dz <= cfg.inlier_sigmas)).sum())
-    return _Linearisation(H, g, int(valid.sum()), int(usable.sum()), num_inliers, rms[0], rms[1])
+    return _Linearisation(H, g, int(valid.sum()), int(usable.sum()), num_inliers, rms[0], rms[1], (used[0], used[1]))
 
 
 def _solve(H: torch.Tensor, g: torch.Tensor, damping: float) -> torch.Tensor:
@@ -279,20 +286,30 @@ def _solve(H: torch.Tensor, g: torch.Tensor, damping: float) -> torch.Tensor:
 
 
 def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig,
-                 prior: PosePrior | None = None):
-    """Gauss–Newton iterations at one level -> (T, iterations, converged, last linearisation).
+                 prior: PosePrior | None = None, also: tuple[tuple[PyramidLevel, torch.Tensor], ...] = ()):
+    """Gauss–Newton iterations at one level -> (T, iterations, converged, last linearisation of ``ref``).
 
+    ``also``: more reference levels with their (4, 4) T_other_ref, whose normal equations join
+    ``ref``'s: T_other_cur = T_other_ref · T, so a step exp(δ) · T is exp(Ad δ) · T_other_cur there
+    (Ad the adjoint of T_other_ref) and their H, g enter as Adᵀ H Ad, Adᵀ g. They are weighted with
+    ``ref``'s robust scales: each view's own would make the joint pose follow whichever view fits it
+    best (its scale shrinks, its weight grows) instead of averaging them.
     Converged: the update moves the image by < tol_pixels, or by < stall_pixels without shrinking to
     half the previous one (a limit cycle of the discrete projective association and the reweighting).
     """
     f = float(ref.K[0, 0])
     z_mid = float(src.points[2].median()) if src.points.shape[1] else 1.0
     last = math.inf
+    adjoints = [adjoint_vw(T_other_ref.to(T)) for _, T_other_ref in also]
     for it in range(cfg.max_iterations):
         lin = _linearise(ref, src, T, A, cfg)
         if lin.num_valid < cfg.min_correspondences:
             return T, it, False, lin
         H, g = lin.H, lin.g
+        for (other, T_other_ref), Ad in zip(also, adjoints):
+            more = _linearise(other, src, T_other_ref.to(T) @ T, None, cfg, lin.scales)  # one noise scale for all views
+            if more.num_valid >= cfg.min_correspondences:
+                H, g = H + Ad.T @ more.H.to(H) @ Ad, g + Ad.T @ more.g.to(g)
         if prior is not None:  # ½ eᵀ Λ e with e ≈ e0 + δ
             Lam = prior.information.to(H)
             H, g = H + Lam, g + Lam @ prior.residual(T).to(g)
@@ -313,6 +330,7 @@ def track_pyramids(
     ref_rgb_depth: torch.Tensor | None = None,
     cur_rgb_depth: torch.Tensor | None = None,
     prior: PosePrior | None = None,
+    also: tuple[tuple[list[PyramidLevel], torch.Tensor], ...] = (),
 ) -> OdometryResult:
     """Estimate T_ref_cur (``c2w_cur = c2w_ref @ T_ref_cur``, colour camera frames) coarse to fine.
 
@@ -325,6 +343,10 @@ def track_pyramids(
             whose depth and colour are not simultaneous (e.g. exp(ξ·Δt) from a velocity); None = simultaneous.
         prior: an optional :class:`PosePrior` on T_ref_cur, added to every level's normal equations
             (the result's ``information`` stays the pixels' own).
+        also: more references of the same scene, each (pyramid, (4, 4) T_other_ref: ``ref``'s colour
+            camera in its frame), aligned jointly with ``ref`` (one pose, all their normal equations;
+            their pixels average out each single view's noise); simultaneous depth and colour. The
+            result's statistics and information are ``ref``'s alone.
     Returns:
         :class:`OdometryResult`; on failure (no overlap, no depth) ``ok`` is False, never a silent identity.
     """
@@ -335,7 +357,7 @@ def track_pyramids(
     iterations, converged, lin, n_src = [], False, None, 0
     for level in reversed(range(min(len(ref), len(cur), config.levels))):
         src = _source(cur[level], config.max_points / config.coarse_points_ratio**level, cur_rgb_depth, config.min_depth)
-        T, its, converged, lin = _track_level(ref[level], src, T, A, config, prior)
+        T, its, converged, lin = _track_level(ref[level], src, T, A, config, prior, tuple((p[level], X) for p, X in also) if level == 0 else ())
         iterations.append(its)
         n_src = src.points.shape[1]
     return _result(T, converged, lin, n_src, tuple(iterations), config)

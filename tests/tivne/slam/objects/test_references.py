@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from tivne.slam.objects.references import Reference, add_reference, centred_on, pick_reference, shows_enough
+from tivne.slam.objects.references import Reference, add_reference, centred_on, companions, pick_reference, shows_enough
 
 
 def _camera_at(position) -> torch.Tensor:
@@ -22,6 +22,18 @@ def _reference(position, pixels=1000, tau=0.0) -> Reference:
 def _around(deg: float) -> tuple[float, float, float]:
     """A camera position on the unit circle about the object's z axis, ``deg`` from +x."""
     return (math.cos(math.radians(deg)), math.sin(math.radians(deg)), 0.0)
+
+
+def test_companions_are_the_other_views_of_the_predicted_side_nearest_first():
+    refs = [_reference(_around(a), tau=float(k)) for k, a in enumerate((0.0, 20.0, 5.0, 90.0, 10.0))]
+    refs.append(_reference(tuple(2.0 * x for x in _around(3.0)), tau=5.0))  # the same side from twice as far
+    C_pred = _camera_at(_around(4.0))
+    ref = pick_reference(refs, C_pred, 12.0)
+    assert ref.tau == 0.0
+    # Within 24 degrees and 25 % of the distance, nearest in direction first, never the reference itself.
+    assert [r.tau for r in companions(refs, ref, C_pred, 24.0, 4)] == [2.0, 4.0, 1.0]
+    assert [r.tau for r in companions(refs, ref, C_pred, 24.0, 1)] == [2.0]
+    assert companions(refs, ref, C_pred, 24.0, 0) == []
 
 
 def test_stored_views_keep_covering_every_side_of_a_turning_object():

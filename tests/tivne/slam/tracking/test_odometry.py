@@ -210,6 +210,24 @@ def test_a_reference_cut_to_its_object_aligns_as_the_whole_image(room):
     assert crop_pyramid(ref, torch.zeros_like(m0)) is ref  # nothing to keep: unchanged
 
 
+def test_references_aligned_jointly_share_one_pose(room):
+    # The current view against a reference and a second view of the same scene from elsewhere, whose
+    # pose relative to the reference is known: their normal equations join through the adjoint, so
+    # the joint pose is as exact as the single one. A companion placed 2 degrees off pulls it part of
+    # the way: it is used, and weighted with the reference's noise scale, not its own (with its own,
+    # the view fitting best takes all: 2.0 degrees, measured).
+    P0 = room.camera_pose(0)
+    P1, dT = P0 @ motion(11, 0.04, 4.0), motion(12, 0.02, 2.0)
+    K, cfg = room.intrinsics.K(), OdometryConfig()
+    pyr = [frame_pyramid(*view(room, P)[:2], K, cfg) for P in (P0, P1, P0 @ dT)]
+    T_other_ref = invert_pose(P1) @ P0
+    joint = track_pyramids(pyr[0], pyr[2], None, cfg, also=((pyr[1], T_other_ref),))
+    t_err, r_err = pose_error(joint.T_ref_cur, dT)
+    assert joint.ok and t_err < 1.0 and r_err < 0.05, (t_err, r_err)
+    wrong = track_pyramids(pyr[0], pyr[2], None, cfg, also=((pyr[1], motion(13, 0.0, 2.0) @ T_other_ref),))
+    assert 0.3 < pose_error(wrong.T_ref_cur, dT)[1] < 1.5
+
+
 def test_gradients_and_normals_of_known_surfaces():
     u = torch.arange(40.0)[None].expand(30, 40)
     g = image_gradients(0.01 * u)
