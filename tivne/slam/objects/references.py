@@ -25,7 +25,6 @@ class Reference:
     points: torch.Tensor | None = None
 
 
-
 def view_direction(C: torch.Tensor) -> torch.Tensor:
     """(3,) unit direction from the object origin to the camera of camera-to-object pose C (4, 4)."""
     return C[:3, 3] / C[:3, 3].norm().clamp_min(1e-9)

@@ -344,9 +344,10 @@ def track_pyramids(
         prior: an optional :class:`PosePrior` on T_ref_cur, added to every level's normal equations
             (the result's ``information`` stays the pixels' own).
         also: more references of the same scene, each (pyramid, (4, 4) T_other_ref: ``ref``'s colour
-            camera in its frame), aligned jointly with ``ref`` (one pose, all their normal equations;
-            their pixels average out each single view's noise); simultaneous depth and colour. The
-            result's statistics and information are ``ref``'s alone.
+            camera in its frame), aligned jointly with ``ref`` at the finest level (one pose, all their
+            normal equations, ``ref``'s noise scales: their pixels average out each single view's
+            noise; the coarser levels find the basin from ``ref`` alone); simultaneous depth and
+            colour. The result's statistics and information are ``ref``'s alone.
     Returns:
         :class:`OdometryResult`; on failure (no overlap, no depth) ``ok`` is False, never a silent identity.
     """
