@@ -70,8 +70,9 @@ class RenderConfig(Settings):
     """Where samples go along a ray and how sharp the surface is. truncation: tr in metres (SDF band
     and bell width); samples span D ± band·tr (n_band of them) plus n_free in free space in front;
     near: closest depth; chunk: rays per forward pass when rendering whole images. n_band 8 (was 12):
-    11-19 % less time per frame on the cube and both real tails with the same camera ATE and real-data
-    PSNR, the cube's geometry the same, its PSNR 0.3 dB lower (experiment=quality keeps 12)."""
+    11-16 % less time per frame on the cube and both real tails with the same camera ATE and real-data
+    PSNR, the synthetic scenes' geometry and object figures within 0.2 cm, their PSNR 0.0-0.4 dB lower
+    (experiment=quality keeps 12)."""
 
     section: ClassVar[str] = "render"
     truncation: float = setting(0.05, gt=0)

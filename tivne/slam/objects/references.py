@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -9,8 +10,10 @@ import torch
 
 from tivne.slam.tracking.pyramid import PyramidLevel
 
-# A stored view is reused when it saw the object from within this angle of the predicted view.
+# A stored view is reused when it saw the object from within this angle of the predicted view, and
+# from a distance within this factor of the predicted one.
 REUSE_ANGLE_DEG = 12.0
+DISTANCE_RATIO = 1.25
 
 
 @dataclass
@@ -30,20 +33,27 @@ def view_direction(C: torch.Tensor) -> torch.Tensor:
     return C[:3, 3] / C[:3, 3].norm().clamp_min(1e-9)
 
 
+def _seen_alike(references: list[Reference], C_pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(N,) cosines between each stored view's direction and that of the predicted view C_pred (4, 4),
+    and (N,) bool: the view was taken from a distance within ``DISTANCE_RATIO`` of C_pred's."""
+    d_pred, dist_pred = view_direction(C_pred), float(C_pred[:3, 3].norm())
+    cosines = torch.stack([view_direction(ref.C) @ d_pred for ref in references])
+    ratio = torch.stack([ref.C[:3, 3].norm() for ref in references]) / max(dist_pred, 1e-9)
+    return cosines, (ratio >= 1.0 / DISTANCE_RATIO) & (ratio <= DISTANCE_RATIO)
+
+
 def pick_reference(references: list[Reference], C_pred: torch.Tensor, max_angle_deg: float) -> Reference:
     """The oldest keyframe that saw the object from within ``max_angle_deg`` of the predicted view
     and from a distance within 25 %, else the one whose view is nearest in direction (the newest of
     equals): tracking against the oldest usable view, not a chain of the latest ones, keeps the
     object's drift from growing with every new keyframe; and a turning object seen again from a
     side an older keyframe saw is aligned to that one, not to the newest, which saw another side."""
-    d_pred, dist_pred = view_direction(C_pred), float(C_pred[:3, 3].norm())
-    cos_max = float(np.cos(np.radians(max_angle_deg)))
-    cosines = [float(view_direction(ref.C) @ d_pred) for ref in references]
-    for ref, cos in zip(references[:-1], cosines):
-        ratio = float(ref.C[:3, 3].norm()) / max(dist_pred, 1e-9)
-        if cos >= cos_max and 0.8 <= ratio <= 1.25:
-            return ref
-    return references[max(range(len(references)), key=lambda i: (cosines[i], i))]
+    cosines, same_distance = _seen_alike(references, C_pred)
+    usable = (cosines >= float(np.cos(np.radians(max_angle_deg)))) & same_distance
+    usable[-1] = False  # the newest is the fallback's, by direction alone
+    if bool(usable.any()):
+        return references[int(usable.nonzero()[0, 0])]
+    return references[max(range(len(references)), key=lambda i: (float(cosines[i]), i))]
 
 
 def companions(references: list[Reference], ref: Reference, C_pred: torch.Tensor, max_angle_deg: float, count: int) -> list[Reference]:
@@ -52,15 +62,10 @@ def companions(references: list[Reference], ref: Reference, C_pred: torch.Tensor
     in direction first: aligned jointly with ``ref``, their pixels average out each single view's
     noise and pose error (a symmetric object's spin rests on its texture, seen a little differently
     in each view)."""
-    d_pred, dist_pred = view_direction(C_pred), float(C_pred[:3, 3].norm())
-    cos_max = float(np.cos(np.radians(max_angle_deg)))
-    near = []
-    for other in references:
-        cos = float(view_direction(other.C) @ d_pred)
-        ratio = float(other.C[:3, 3].norm()) / max(dist_pred, 1e-9)
-        if other is not ref and cos >= cos_max and 0.8 <= ratio <= 1.25:
-            near.append((-cos, id(other), other))
-    return [other for _, _, other in sorted(near)[:count]]
+    cosines, same_distance = _seen_alike(references, C_pred)
+    near = (cosines >= float(np.cos(np.radians(max_angle_deg)))) & same_distance
+    order = sorted((i for i in range(len(references)) if bool(near[i]) and references[i] is not ref), key=lambda i: (-float(cosines[i]), i))
+    return [references[i] for i in order[:count]]
 
 
 def add_reference(references: list[Reference], new: Reference, limit: int) -> list[Reference]:
@@ -73,12 +78,12 @@ def add_reference(references: list[Reference], new: Reference, limit: int) -> li
     refs = [*references, new]
     while len(refs) > max(limit, 1):
         dirs = torch.stack([view_direction(r.C) for r in refs])
-        dist = torch.stack([r.C[:3, 3].norm() for r in refs]).double()
+        dist = torch.stack([r.C[:3, 3].norm() for r in refs])
         ratio = dist[:, None] / dist[None, :].clamp_min(1e-9)
-        # Views from other distances (outside pick_reference's range) are not the same view.
-        similar = (dirs @ dirs.T).double() - 4.0 * ((ratio < 0.8) | (ratio > 1.25)).double()
-        similar = similar.tril(-1) - 8.0 * torch.ones_like(similar).triu()  # row j: the older views only
-        refs.pop(1 + int(similar[1:].max(1).values.argmax()))
+        far = (ratio < 1.0 / DISTANCE_RATIO) | (ratio > DISTANCE_RATIO)  # not the same view, whatever the direction
+        similar = (dirs @ dirs.T) - 4.0 * far.to(dirs.dtype)
+        older = torch.ones_like(far).tril(-1)  # row j: the views older than j
+        refs.pop(1 + int(similar.masked_fill(~older, -math.inf)[1:].max(1).values.argmax()))
     return refs
 
 

@@ -186,13 +186,13 @@ def _photometric(
     x, y, z = p
     gu, gv = s[1] * (ref.K[0, 0] / z), s[2] * (ref.K[1, 1] / z)
     g = torch.stack([gu, gv, -(gu * x + gv * y) / z])
-    s_r = robust_scale(r, cfg.intensity_sigma_min, valid) if given is None else given
-    scale = s_r
-    if cfg.photometric_depth_noise:
-        scale = torch.hypot(scale, (g * dp_dz).sum(0) * kinect_depth_sigma(src.points[2], cfg.depth_sigma))
+    noise = robust_scale(r, cfg.intensity_sigma_min, valid) if given is None else given
+    scale = noise
+    if cfg.photometric_depth_noise:  # per pixel: the current depth's noise seen through the gradient
+        scale = torch.hypot(noise, (g * dp_dz).sum(0) * kinect_depth_sigma(src.points[2], cfg.depth_sigma))
     rows = _rows(p, g, r)
     wts = _kernel(r / scale, cfg) * valid
-    return rows, wts / scale**2, wts, s_r
+    return rows, wts / scale**2, wts, noise
 
 
 def _geometric(
