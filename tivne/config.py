@@ -115,7 +115,12 @@ class TrackingConfig(Settings):
     overlap: track the next frame in a worker thread (overlap_threads OpenMP threads of its own)
     while the current one is mapped, where the order changes nothing (method 'odometry', which does
     not read the map, and ``mapping.optimize_poses`` off): the same poses and map in less wall time
-    on a CPU, since the odometry's many small operations barely use a second core."""
+    on a CPU, since the odometry's many small operations barely use a second core.
+    stored_references: past references kept for re-use (1 = only the current one): when the reference
+    goes stale, the oldest stored one whose camera was within reuse_max_m / reuse_max_deg of the new
+    pose and that sees at least reuse_min_overlap of its pixels becomes the reference again instead
+    of the new frame, so a camera that returns to a view is tracked against the view's first
+    reference, not through the chain of references since (the drift of that chain is dropped)."""
 
     section: ClassVar[str] = "tracking"
     method: str = setting("odometry", choices=("odometry", "odometry+field", "field"))
@@ -128,6 +133,10 @@ class TrackingConfig(Settings):
     min_static_pixels: int = setting(512, ge=1)
     overlap: bool = True
     overlap_threads: int = setting(1, ge=1)
+    stored_references: int = setting(8, ge=1)
+    reuse_max_m: float = setting(0.1, ge=0)
+    reuse_max_deg: float = setting(15.0, ge=0)
+    reuse_min_overlap: float = setting(0.85, ge=0, le=1)
 
     @property
     def reads_map(self) -> bool:

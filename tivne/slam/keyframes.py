@@ -144,6 +144,23 @@ def overlap_ratios(
     return inside.float().mean(dim=1)
 
 
+def view_overlaps(new: View, poses: list[torch.Tensor], K: torch.Tensor, pixels: int = 256) -> torch.Tensor:
+    """(F,) share of ``new``'s static pixels with depth (a regular subset of about ``pixels``) that
+    reproject inside the image of a camera at each of ``poses`` ((4, 4) c2w) (:func:`overlap_ratios`)."""
+    usable = new.depth > 0
+    if new.dynamic is not None:
+        usable = usable & ~new.dynamic
+    idx = usable.reshape(-1).nonzero()[:, 0]
+    if idx.numel() == 0 or not poses:
+        return torch.zeros(len(poses))
+    idx = idx[:: max(1, idx.numel() // pixels)]
+    h, w = new.depth.shape
+    uv = torch.stack([idx % w, idx // w], dim=-1).to(new.depth.dtype)
+    dtype = new.depth.dtype
+    stacked = torch.stack([p.to(dtype) for p in poses])
+    return overlap_ratios(uv, new.depth.reshape(-1)[idx], K.to(dtype), new.pose.to(dtype), stacked, w, h).cpu()
+
+
 @dataclass(frozen=True)
 class KeyframePolicy:
     """Picks up to ``cfg.window`` keyframes for a mapping round.

@@ -198,7 +198,7 @@ class SlamLoop:
         mapping, ahead, new_reference = None, None, False
         maps = k == 0 or k % self.mapper.cfg.every == 0
         if maps and next_frame is not None and self.overlaps:
-            new_reference = self.tracker.update_reference(view, K, result, keyframe)
+            new_reference = self.tracker.update_reference(view, K, result, keyframe, self.poses)
             ahead = self._track_ahead(k, frame, view, next_frame)
         if maps:
             mapping = self.mapper.map_frame(view, self.keyframes, self.policy, K, self.generator, first=k == 0)
@@ -209,7 +209,7 @@ class SlamLoop:
         if k > 0:
             self.allocator.allocate(self.field, view, K)
         if ahead is None:
-            new_reference = self.tracker.update_reference(view, K, result, keyframe)
+            new_reference = self.tracker.update_reference(view, K, result, keyframe, self.poses)
         else:
             self._ahead = ahead.result()
         return view, keyframe, new_reference, mapping, correction, objects

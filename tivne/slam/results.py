@@ -152,6 +152,7 @@ def run_metrics(loop: SlamLoop) -> dict[str, Any]:
         "tracking_lost": counts.lost,
         "frames_without_tracking": counts.without_tracking,
         "tracking_recovered": counts.recovered,
+        "reference_reuses": counts.reused,
         "checkpoint": RunDir.CHECKPOINT,
     } | (loop.objects.metrics() if loop.objects is not None else {}) | (loop.backend.metrics() if loop.backend is not None else {})
     result = loop.ate()

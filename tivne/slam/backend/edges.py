@@ -21,25 +21,9 @@ import torch
 from tivne.config import BackendConfig, OdometryConfig
 from tivne.geometry import invert_pose, pose_difference
 from tivne.render.rays import View
-from tivne.slam.keyframes import overlap_ratios
+from tivne.slam.keyframes import view_overlaps
 from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
 from tivne.slam.tracking.pyramid import PyramidLevel
-
-
-def view_overlaps(new: View, others: list[View], K: torch.Tensor, pixels: int = 256) -> torch.Tensor:
-    """(F,) share of ``new``'s static pixels with depth (a regular subset of about ``pixels``) that
-    reproject inside each of ``others`` at the current poses (:func:`tivne.slam.keyframes.overlap_ratios`)."""
-    usable = new.depth > 0
-    if new.dynamic is not None:
-        usable = usable & ~new.dynamic
-    idx = usable.reshape(-1).nonzero()[:, 0]
-    if idx.numel() == 0 or not others:
-        return torch.zeros(len(others))
-    idx = idx[:: max(1, idx.numel() // pixels)]
-    h, w = new.depth.shape
-    uv = torch.stack([idx % w, idx // w], dim=-1).to(new.depth.dtype)
-    poses = torch.stack([v.pose.to(new.pose.dtype) for v in others])
-    return overlap_ratios(uv, new.depth.reshape(-1)[idx], K, new.pose, poses, w, h).cpu()
 
 
 def covisible_candidates(views: list[View], new: View, K: torch.Tensor, cfg: BackendConfig) -> list[int]:
@@ -48,7 +32,7 @@ def covisible_candidates(views: list[View], new: View, K: torch.Tensor, cfg: Bac
     if not views:
         return []
     recent = list(range(max(0, len(views) - cfg.loop_min_gap), len(views) - 1))
-    ratios = view_overlaps(new, [views[i] for i in recent], K)
+    ratios = view_overlaps(new, [views[i].pose for i in recent], K)
     ranked = [recent[i] for i in torch.argsort(ratios, descending=True).tolist() if ratios[i] >= cfg.min_overlap]
     return sorted(ranked[: cfg.covisible]) + [len(views) - 1]
 
@@ -62,7 +46,7 @@ def loop_candidates(views: list[View], new: View, K: torch.Tensor, cfg: BackendC
     ]
     if not old:
         return []
-    ratios = view_overlaps(new, [views[i] for i in old], K)
+    ratios = view_overlaps(new, [views[i].pose for i in old], K)
     return [old[i] for i in torch.argsort(ratios, descending=True).tolist() if ratios[i] >= cfg.min_overlap][: cfg.loop_candidates]
 
 

@@ -18,6 +18,11 @@ frame keeps the predicted pose and is never mapped.
 
 The tracker owns no pose: the reference is a frame id, and every pose (the reference's, the motion
 model's last two) is read from the run's pose owners through a :class:`PoseLookup`.
+
+Past references are kept (``tracking.stored_references``): when the reference goes stale, the oldest
+stored one that saw the new frame's view (:func:`reusable_reference`) becomes the reference again, so a
+camera that returns to a view is tracked against that view's first reference instead of through the
+chain of references in between; a new reference is made only where none fits.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from tivne.config import FieldTrackingConfig, LossWeights, OdometryConfig, Rende
 from tivne.field.networks import TimeVaryingField
 from tivne.geometry import invert_pose, orthonormalize_pose, pose_difference
 from tivne.render.rays import View
+from tivne.slam.keyframes import view_overlaps
 from tivne.slam.tracking.field import predict_pose, track_frame
 from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
 from tivne.slam.tracking.pyramid import PyramidLevel
@@ -61,7 +67,7 @@ class Reference:
 class TrackingCounts:
     """Frames whose pose is not a tracked one, for metrics.json: without_tracking (no usable static
     depth), lost (tracking ran and failed), recovered (the wider retry succeeded); warnings printed;
-    seconds / frames / field-tracker iterations spent."""
+    seconds / frames / field-tracker iterations spent; reused: switches to a stored reference."""
 
     without_tracking: int = 0
     lost: int = 0
@@ -70,6 +76,7 @@ class TrackingCounts:
     seconds: float = 0.0
     frames: int = 0
     field_iters: int = 0
+    reused: int = 0
 
 
 def pose_jump(pose: torch.Tensor, predicted: torch.Tensor) -> tuple[float, float]:
@@ -77,10 +84,39 @@ def pose_jump(pose: torch.Tensor, predicted: torch.Tensor) -> tuple[float, float
     return pose_difference(predicted, pose)
 
 
+def reusable_references(
+    view: View, stored: list[torch.Tensor], K: torch.Tensor, max_m: float, max_deg: float, min_overlap: float
+) -> list[int]:
+    """Indices, oldest first, of the ``stored`` references' c2w poses ((4, 4), oldest first) whose
+    camera was within ``max_m`` / ``max_deg`` of ``view.pose`` and whose image holds at least
+    ``min_overlap`` of the view's static pixels with depth (reprojected at the current poses)."""
+    near = [i for i, pose in enumerate(stored) if (d := pose_difference(pose, view.pose))[0] <= max_m and d[1] <= max_deg]
+    if not near:
+        return []
+    ratios = view_overlaps(view, [stored[i] for i in near], K).tolist()
+    return [i for i, r in zip(near, ratios) if r >= min_overlap]
+
+
+def reference_to_drop(stored: list[torch.Tensor], max_m: float, max_deg: float) -> int:
+    """Which of ``stored`` c2w poses ((4, 4), oldest first; the last is the new current reference) to
+    drop when one too many are kept: of the two nearest in pose (metres / max_m + degrees / max_deg)
+    the newer, never the oldest (the least drifted) nor the current one; with two, the older."""
+    if len(stored) <= 2:
+        return 0
+    scale_m, scale_deg = max(max_m, 1e-9), max(max_deg, 1e-9)
+
+    def gap(i: int, j: int) -> float:
+        metres, degrees = pose_difference(stored[i], stored[j])
+        return metres / scale_m + degrees / scale_deg
+
+    return min(((i, j) for j in range(1, len(stored) - 1) for i in range(j)), key=lambda pair: gap(*pair))[1]
+
+
 class Tracker:
     """Tracks each frame's pose; owns the odometry reference, its counters and its warnings."""
 
     WARNING_LIMIT = 20
+    REUSE_TRIES = 2  # stored references verified by an alignment at a switch, at most
 
     def __init__(
         self, cfg: TrackingConfig, field_cfg: FieldTrackingConfig, odometry: OdometryConfig, render: RenderConfig, weights: LossWeights
@@ -89,6 +125,7 @@ class Tracker:
         wide = dict(levels=odometry.levels + 1, max_iterations=2 * odometry.max_iterations)
         self.recovery = dataclasses.replace(odometry, **wide)
         self.reference: Reference | None = None
+        self.stored: list[Reference] = []  # past and current references, oldest first
         self.counts = TrackingCounts()
         self._current: list[PyramidLevel] | None = None
 
@@ -157,10 +194,13 @@ class Tracker:
             result = retry if retry.ok or retry.inlier_ratio > result.inlier_ratio else result
         return (ref_pose @ result.T_ref_cur).to(predicted.dtype), result, recovered
 
-    def update_reference(self, view: View, K: torch.Tensor, result: TrackResult, is_keyframe: bool) -> bool:
-        """After a tracked frame: make it the odometry reference when the reference is gone stale
-        (``tracking.reference``: every frame, or when the overlap / inlier ratio with the reference
-        fell below the thresholds, or at every mapping keyframe). Returns whether it switched."""
+    def update_reference(
+        self, view: View, K: torch.Tensor, result: TrackResult, is_keyframe: bool, poses: PoseLookup | None = None
+    ) -> bool:
+        """After a tracked frame: when the reference is gone stale (``tracking.reference``: every
+        frame, or when the overlap / inlier ratio with the reference fell below the thresholds, or at
+        every mapping keyframe), switch to a stored reference that saw this view (needs ``poses``;
+        not with ``reference=frame``) or else make this frame the reference. Returns whether it switched."""
         if not self.uses_odometry:
             return False
         cfg, odo = self.cfg, result.odometry
@@ -174,9 +214,33 @@ class Tracker:
         if not stale:
             return False
         pyramid = self._current if self._current is not None else frame_pyramid(view.colour(), view.depth, K, self.recovery, view.dynamic)
-        self.reference = Reference(view.frame_id, pyramid)
+        reuse = None
+        if poses is not None and cfg.reference != "frame" and self.stored:
+            stored = [poses.pose(ref.frame_id).to(view.pose.dtype) for ref in self.stored]
+            candidates = reusable_references(view, stored, K, cfg.reuse_max_m, cfg.reuse_max_deg, cfg.reuse_min_overlap)
+            reuse = next((i for i in candidates[: self.REUSE_TRIES] if self._aligns(self.stored[i], stored[i], view.pose, pyramid)), None)
+        if reuse is not None:
+            self.reference = self.stored[reuse]
+            self.counts.reused += 1
+        else:
+            self.reference = Reference(view.frame_id, pyramid)
+            self.stored.append(self.reference)
+            if len(self.stored) > cfg.stored_references:
+                drop = 0
+                if poses is not None:  # this frame is not in the trajectory yet: its pose is the view's
+                    kept = [poses.pose(ref.frame_id).double() for ref in self.stored[:-1]] + [view.pose.double()]
+                    drop = reference_to_drop(kept, cfg.reuse_max_m, cfg.reuse_max_deg)
+                self.stored.pop(drop)
         self._current = None
         return True
+
+    def _aligns(self, ref: Reference, ref_pose: torch.Tensor, pose: torch.Tensor, pyramid: list[PyramidLevel]) -> bool:
+        """Whether this frame (``pyramid``, c2w ``pose``) aligns to the stored ``ref`` (c2w
+        ``ref_pose``) from their current relative pose as well as a fresh reference must: the
+        odometry converges and keeps reference_min_overlap / reference_min_inliers (a view seen
+        with other blur or exposure, or drifted beyond the basin, is not reused)."""
+        result = track_pyramids(ref.pyramid, pyramid, invert_pose(ref_pose.double()) @ pose.double(), self.odometry)
+        return result.ok and result.overlap >= self.cfg.reference_min_overlap and result.inlier_ratio >= self.cfg.reference_min_inliers
 
     def warn(self, message: str) -> None:
         """A ``warning:`` line on stderr (the first ``WARNING_LIMIT`` of them; metrics.json counts all)."""
@@ -187,16 +251,23 @@ class Tracker:
             print("warning: more frames without tracking; see tracking_lost / frames_without_tracking in metrics.json", file=sys.stderr)
 
     def state_dict(self) -> dict:
-        """The odometry reference (frame id, its pyramid as built from the full-precision frame) and the counters."""
-        ref = self.reference
+        """The stored references (frame id, pyramid as built from the full-precision frame), which
+        of them is the current one, and the counters."""
+        def saved(ref: Reference) -> dict:
+            return {"frame_id": ref.frame_id, "pyramid": [{f.name: getattr(level, f.name) for f in dataclasses.fields(level)} for level in ref.pyramid]}
+
         counts = dataclasses.asdict(self.counts)
-        if ref is None:
+        if self.reference is None:
             return {"reference": None, "counts": counts}
-        levels = [{f.name: getattr(level, f.name) for f in dataclasses.fields(level)} for level in ref.pyramid]
-        return {"reference": {"frame_id": ref.frame_id, "pyramid": levels}, "counts": counts}
+        stored = self.stored if any(ref is self.reference for ref in self.stored) else [*self.stored, self.reference]
+        current = next(i for i, ref in enumerate(stored) if ref is self.reference)
+        return {"reference": current, "stored": [saved(ref) for ref in stored], "counts": counts}
 
     def load_state_dict(self, state: dict) -> None:
-        ref = state.get("reference")
         self._current = None  # rebuilt by the next frame's tracking
         self.counts = TrackingCounts(**state["counts"])
-        self.reference = None if ref is None else Reference(int(ref["frame_id"]), [PyramidLevel(**level) for level in ref["pyramid"]])
+        current = state.get("reference")
+        if isinstance(current, dict):  # a checkpoint from before stored references: the current one alone
+            state, current = {"stored": [current]}, 0
+        self.stored = [Reference(int(ref["frame_id"]), [PyramidLevel(**level) for level in ref["pyramid"]]) for ref in state.get("stored", [])]
+        self.reference = None if current is None else self.stored[int(current)]

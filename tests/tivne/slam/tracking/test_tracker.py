@@ -16,7 +16,7 @@ from tivne.field.networks import TimeVaryingField
 from tivne.geometry import invert_pose, se3_exp
 from tivne.render.rays import View
 from tivne.slam.tracking import TrackStatus
-from tivne.slam.tracking.tracker import Tracker, pose_jump
+from tivne.slam.tracking.tracker import Tracker, pose_jump, reference_to_drop, reusable_references
 
 W, H = 160, 120
 
@@ -119,3 +119,55 @@ def test_a_frame_without_static_depth_is_not_tracked(room, capsys):
     assert result.status is TrackStatus.NO_DEPTH and result.lost and torch.equal(result.pose, last)
     assert tracker.counts.without_tracking == 1 and tracker.counts.frames == 0
     assert "only 0 static pixels with depth" in capsys.readouterr().err
+
+
+def turned(seq: SyntheticSequence, degrees: float) -> torch.Tensor:
+    """The first camera's GT pose turned by ``degrees`` about its y axis (world frame of the scene)."""
+    return seq.camera_pose(0) @ se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.0, math.radians(degrees), 0.0], dtype=torch.float64))
+
+
+def test_a_camera_back_at_an_earlier_view_reuses_that_views_reference(room):
+    tracker = make_tracker(reference="adaptive", stored_references=4)
+    K = room.intrinsics.K()
+    world = invert_pose(room.camera_pose(0))
+    frames = [frame_at(room, turned(room, deg), i) for i, deg in enumerate([0.0, 25.0, 3.0])]
+    poses = [(world @ turned(room, deg)).float() for deg in (0.0, 25.0, 3.0)]
+    lookup = Poses(poses)
+    first = track(tracker, frames[0], [], K)
+    assert tracker.update_reference(view_of(frames[0], poses[0]), K, first, True, lookup)
+    result = track(tracker, frames[1], poses[:1], K)
+    stale = dataclasses.replace(result, odometry=dataclasses.replace(result.odometry, overlap=0.3))
+    # 25 degrees away: no stored view fits, the frame becomes a new reference
+    assert tracker.update_reference(view_of(frames[1], poses[1]), K, stale, False, lookup) and tracker.reference.frame_id == 1
+    # back within 3 degrees of the first view: its reference again, not a third one
+    assert tracker.update_reference(view_of(frames[2], poses[2]), K, stale, False, lookup)
+    assert tracker.reference.frame_id == 0 and [r.frame_id for r in tracker.stored] == [0, 1]
+    # without the pose lookup (or with reference=frame) nothing is reused
+    assert tracker.update_reference(view_of(frames[2], poses[2]), K, stale, False) and tracker.reference.frame_id == 2
+    # a checkpoint keeps every stored reference and which is current
+    restored = make_tracker(reference="adaptive", stored_references=4)
+    restored.load_state_dict(tracker.state_dict())
+    assert [r.frame_id for r in restored.stored] == [0, 1, 2] and restored.reference is restored.stored[2]
+    assert torch.equal(restored.stored[0].pyramid[0].intensity, tracker.stored[0].pyramid[0].intensity)
+
+
+def test_reusable_references_needs_pose_and_overlap_and_prefers_the_oldest(room):
+    K = room.intrinsics.K()
+    world = invert_pose(room.camera_pose(0))
+    pose = lambda deg: (world @ turned(room, deg)).double()  # noqa: E731
+    view = view_of(frame_at(room, turned(room, 2.0), 5), pose(2.0))
+    stored = [pose(40.0), pose(-4.0), pose(0.0), pose(2.0)]
+    assert reusable_references(view, stored, K, 0.1, 15.0, 0.85) == [1, 2, 3]  # the oldest near one first
+    assert reusable_references(view, stored[:1], K, 0.1, 15.0, 0.85) == []  # too far turned
+    assert reusable_references(view, stored[1:], K, 0.1, 15.0, 1.01) == []  # the overlap bar not met
+    moved = pose(0.0).clone()
+    moved[:3, 3] += torch.tensor([0.3, 0.0, 0.0], dtype=moved.dtype)
+    assert reusable_references(view, [moved], K, 0.1, 15.0, 0.0) == []  # 30 cm away
+
+
+def test_reference_to_drop_keeps_the_oldest_and_the_current_and_thins_the_closest_pair():
+    def at(deg: float) -> torch.Tensor:
+        return se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.0, math.radians(deg), 0.0], dtype=torch.float64))
+
+    assert reference_to_drop([at(0.0), at(30.0), at(31.0), at(60.0), at(0.5)], 0.1, 15.0) == 2  # 30 / 31: the newer
+    assert reference_to_drop([at(0.0), at(30.0)], 0.1, 15.0) == 0  # room for one: the current stays
