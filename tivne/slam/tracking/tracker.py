@@ -236,11 +236,11 @@ class Tracker:
 
     def _aligns(self, ref: Reference, ref_pose: torch.Tensor, pose: torch.Tensor, pyramid: list[PyramidLevel]) -> bool:
         """Whether this frame (``pyramid``, c2w ``pose``) aligns to the stored ``ref`` (c2w
-        ``ref_pose``) from their current relative pose as well as a fresh reference must: the
-        odometry converges and keeps reference_min_overlap / reference_min_inliers (a view seen
-        with other blur or exposure, or drifted beyond the basin, is not reused)."""
+        ``ref_pose``) from their current relative pose: the odometry converges, keeps
+        reuse_min_overlap of the frame in view and reference_min_inliers of its pixels (a view seen
+        with other blur or exposure, drifted beyond the basin, or already falling behind, is not reused)."""
         result = track_pyramids(ref.pyramid, pyramid, invert_pose(ref_pose.double()) @ pose.double(), self.odometry)
-        return result.ok and result.overlap >= self.cfg.reference_min_overlap and result.inlier_ratio >= self.cfg.reference_min_inliers
+        return result.ok and result.overlap >= self.cfg.reuse_min_overlap and result.inlier_ratio >= self.cfg.reference_min_inliers
 
     def warn(self, message: str) -> None:
         """A ``warning:`` line on stderr (the first ``WARNING_LIMIT`` of them; metrics.json counts all)."""
