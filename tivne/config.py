@@ -120,7 +120,12 @@ class TrackingConfig(Settings):
     goes stale, the oldest stored one whose camera was within reuse_max_m / reuse_max_deg of the new
     pose and that sees at least reuse_min_overlap of its pixels becomes the reference again instead
     of the new frame, so a camera that returns to a view is tracked against the view's first
-    reference, not through the chain of references since (the drift of that chain is dropped)."""
+    reference, not through the chain of references since (the drift of that chain is dropped); the
+    switch is verified by aligning the frame to the stored view (it must converge and keep
+    reuse_min_overlap / reference_min_inliers). joint_references: up to this many stored references
+    that see the frame at its predicted pose as a reference must (overlap at least
+    reference_min_overlap, from within reuse_max_deg) are aligned jointly with the reference at the
+    finest pyramid level (0 = the reference alone)."""
 
     section: ClassVar[str] = "tracking"
     method: str = setting("odometry", choices=("odometry", "odometry+field", "field"))
@@ -137,6 +142,7 @@ class TrackingConfig(Settings):
     reuse_max_m: float = setting(0.1, ge=0)
     reuse_max_deg: float = setting(15.0, ge=0)
     reuse_min_overlap: float = setting(0.85, ge=0, le=1)
+    joint_references: int = setting(2, ge=0)
 
     @property
     def reads_map(self) -> bool:

@@ -186,13 +186,31 @@ class Tracker:
         ref_pose = poses.pose(ref.frame_id).double()
         self._current = frame_pyramid(view.colour(), view.depth, K, self.recovery, view.dynamic)
         to_ref = invert_pose(ref_pose)
-        result = track_pyramids(ref.pyramid, self._current, to_ref @ predicted.double(), self.odometry)
+        result = track_pyramids(ref.pyramid, self._current, to_ref @ predicted.double(), self.odometry, also=self._companions(view, ref, ref_pose, predicted, poses, K))
         recovered = False
         if not result.ok:  # a wider basin, from the last good pose (no motion)
             retry = track_pyramids(ref.pyramid, self._current, to_ref @ last.double(), self.recovery)
             recovered = retry.ok
             result = retry if retry.ok or retry.inlier_ratio > result.inlier_ratio else result
         return (ref_pose @ result.T_ref_cur).to(predicted.dtype), result, recovered
+
+    def _companions(
+        self, view: View, ref: Reference, ref_pose: torch.Tensor, predicted: torch.Tensor, poses: PoseLookup, K: torch.Tensor
+    ) -> tuple[tuple[list[PyramidLevel], torch.Tensor], ...]:
+        """Up to ``tracking.joint_references`` stored references besides ``ref`` that see the frame
+        at its predicted pose as a reference must (reprojection overlap at least
+        reference_min_overlap), from within reuse_max_deg, the most overlapping first, each with its
+        T_other_ref (4, 4): aligned jointly with ``ref`` at the finest level, their pixels average out
+        each single view's noise, and older views tie the pose to where it was seen before."""
+        cfg = self.cfg
+        others = [other for other in self.stored if other is not ref]
+        if cfg.joint_references <= 0 or not others:
+            return ()
+        other_poses = [poses.pose(other.frame_id).double() for other in others]
+        turned = [pose_difference(pose, predicted)[1] <= cfg.reuse_max_deg for pose in other_poses]
+        ratios = view_overlaps(dataclasses.replace(view, pose=predicted), other_poses, K).tolist()
+        near = sorted((i for i in range(len(others)) if turned[i] and ratios[i] >= cfg.reference_min_overlap), key=lambda i: -ratios[i])
+        return tuple((others[i].pyramid, invert_pose(other_poses[i]) @ ref_pose) for i in near[: cfg.joint_references])
 
     def update_reference(
         self, view: View, K: torch.Tensor, result: TrackResult, is_keyframe: bool, poses: PoseLookup | None = None

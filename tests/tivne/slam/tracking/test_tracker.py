@@ -171,3 +171,28 @@ def test_reference_to_drop_keeps_the_oldest_and_the_current_and_thins_the_closes
 
     assert reference_to_drop([at(0.0), at(30.0), at(31.0), at(60.0), at(0.5)], 0.1, 15.0) == 2  # 30 / 31: the newer
     assert reference_to_drop([at(0.0), at(30.0)], 0.1, 15.0) == 0  # room for one: the current stays
+
+
+def test_stored_references_that_see_the_frame_are_aligned_jointly(room):
+    tracker = make_tracker(reference="adaptive", stored_references=4, joint_references=2)
+    K = room.intrinsics.K()
+    world = invert_pose(room.camera_pose(0))
+    degrees = [0.0, 25.0, 4.0]
+    frames = [frame_at(room, turned(room, deg), i) for i, deg in enumerate(degrees)]
+    poses = [(world @ turned(room, deg)).float() for deg in degrees]
+    lookup = Poses(poses)
+    tracker.update_reference(view_of(frames[0], poses[0]), K, track(tracker, frames[0], [], K), True, lookup)
+    for i in (1, 2):  # force new references at 25 and 4 degrees (stale, and nothing reusable verified)
+        result = track(tracker, frames[i], poses[:i], K)
+        stale = dataclasses.replace(result, odometry=dataclasses.replace(result.odometry, overlap=0.3))
+        tracker.reference = None  # nothing to reuse from: a fresh reference each time
+        tracker.update_reference(view_of(frames[i], poses[i]), K, stale, False)
+    assert [r.frame_id for r in tracker.stored] == [0, 1, 2] and tracker.reference.frame_id == 2
+    target = (world @ turned(room, 2.0)).float()
+    view = view_of(frame_at(room, turned(room, 2.0), 3), target)
+    also = tracker._companions(view, tracker.reference, lookup.pose(2), target.double(), lookup, K)
+    assert len(also) == 1 and also[0][0] is tracker.stored[0].pyramid  # 25 degrees away: not a companion
+    assert torch.allclose(also[0][1], invert_pose(lookup.pose(0)) @ lookup.pose(2))
+    result = track(tracker, frame_at(room, turned(room, 2.0), 3), poses, K)
+    t_err, r_err = pose_jump(result.pose, target)
+    assert result.status is TrackStatus.TRACKED and t_err < 2e-3 and r_err < 0.1, (t_err, r_err)
