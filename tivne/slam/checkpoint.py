@@ -31,8 +31,9 @@ from tivne.field.object_state import restore_objects
 from tivne.slam.outputs import RunDirError, config_differences, describe_differences
 
 # 1: field + trajectory; 2: + the resume state and the run's config; 3: the field's config section
-# and the clock (was: constructor arguments and t0), the loop's state (no copy of the motion poses)
-FORMAT = 3
+# and the clock (was: constructor arguments and t0), the loop's state (no copy of the motion poses);
+# 4: the tracker's stored references (each frame's pyramid source) instead of one reference pyramid
+FORMAT = 4
 
 
 def save_checkpoint(

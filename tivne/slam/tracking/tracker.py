@@ -55,12 +55,28 @@ class PoseLookup(Protocol):
     def recent(self, n: int) -> list[torch.Tensor]: ...
 
 
+@dataclass(frozen=True)
+class PyramidSource:
+    """What a reference's pyramid is built from: colour (H, W, 3) in [0, 1], depth (H, W) metres,
+    dynamic (H, W) bool or None, K (3, 3). A checkpoint stores these (about 5 MB at 640x480, a
+    third of the pyramid) and rebuilds the same pyramid."""
+
+    rgb: torch.Tensor
+    depth: torch.Tensor
+    dynamic: torch.Tensor | None
+    K: torch.Tensor
+
+    def pyramid(self, config: OdometryConfig) -> list[PyramidLevel]:
+        return frame_pyramid(self.rgb, self.depth, self.K, config, self.dynamic)
+
+
 @dataclass
 class Reference:
-    """The frame the odometry tracks against: its frame id and pyramid (finest first)."""
+    """A frame the odometry tracks against: its frame id, pyramid (finest first) and the pyramid's source."""
 
     frame_id: int
     pyramid: list[PyramidLevel]
+    source: PyramidSource
 
 
 @dataclass
@@ -127,7 +143,7 @@ class Tracker:
         self.reference: Reference | None = None
         self.stored: list[Reference] = []  # past and current references, oldest first
         self.counts = TrackingCounts()
-        self._current: list[PyramidLevel] | None = None
+        self._current: tuple[PyramidSource, list[PyramidLevel]] | None = None  # this frame's, until it becomes a reference or the next comes
 
     @property
     def uses_odometry(self) -> bool:
@@ -184,12 +200,14 @@ class Tracker:
     ) -> tuple[torch.Tensor, OdometryResult, bool]:
         ref = self.reference
         ref_pose = poses.pose(ref.frame_id).double()
-        self._current = frame_pyramid(view.colour(), view.depth, K, self.recovery, view.dynamic)
+        source = PyramidSource(view.colour(), view.depth, view.dynamic, K)
+        self._current = (source, source.pyramid(self.recovery))
+        current = self._current[1]
         to_ref = invert_pose(ref_pose)
-        result = track_pyramids(ref.pyramid, self._current, to_ref @ predicted.double(), self.odometry, also=self._companions(view, ref, ref_pose, predicted, poses, K))
+        result = track_pyramids(ref.pyramid, current, to_ref @ predicted.double(), self.odometry, also=self._companions(view, ref, ref_pose, predicted, poses, K))
         recovered = False
         if not result.ok:  # a wider basin, from the last good pose (no motion)
-            retry = track_pyramids(ref.pyramid, self._current, to_ref @ last.double(), self.recovery)
+            retry = track_pyramids(ref.pyramid, current, to_ref @ last.double(), self.recovery)
             recovered = retry.ok
             result = retry if retry.ok or retry.inlier_ratio > result.inlier_ratio else result
         return (ref_pose @ result.T_ref_cur).to(predicted.dtype), result, recovered
@@ -231,7 +249,10 @@ class Tracker:
         )
         if not stale:
             return False
-        pyramid = self._current if self._current is not None else frame_pyramid(view.colour(), view.depth, K, self.recovery, view.dynamic)
+        if self._current is None:
+            source = PyramidSource(view.colour(), view.depth, view.dynamic, K)
+            self._current = (source, source.pyramid(self.recovery))
+        source, pyramid = self._current
         reuse = None
         if poses is not None and cfg.reference != "frame" and self.stored:
             stored = [poses.pose(ref.frame_id).to(view.pose.dtype) for ref in self.stored]
@@ -241,7 +262,7 @@ class Tracker:
             self.reference = self.stored[reuse]
             self.counts.reused += 1
         else:
-            self.reference = Reference(view.frame_id, pyramid)
+            self.reference = Reference(view.frame_id, pyramid, source)
             self.stored.append(self.reference)
             if len(self.stored) > cfg.stored_references:
                 drop = 0
@@ -269,23 +290,22 @@ class Tracker:
             print("warning: more frames without tracking; see tracking_lost / frames_without_tracking in metrics.json", file=sys.stderr)
 
     def state_dict(self) -> dict:
-        """The stored references (frame id, pyramid as built from the full-precision frame), which
-        of them is the current one, and the counters."""
-        def saved(ref: Reference) -> dict:
-            return {"frame_id": ref.frame_id, "pyramid": [{f.name: getattr(level, f.name) for f in dataclasses.fields(level)} for level in ref.pyramid]}
-
+        """The stored references (frame id and the source of its pyramid, which a load rebuilds),
+        which of them is the current one, and the counters."""
         counts = dataclasses.asdict(self.counts)
         if self.reference is None:
-            return {"reference": None, "counts": counts}
-        stored = self.stored if any(ref is self.reference for ref in self.stored) else [*self.stored, self.reference]
-        current = next(i for i, ref in enumerate(stored) if ref is self.reference)
-        return {"reference": current, "stored": [saved(ref) for ref in stored], "counts": counts}
+            return {"reference": None, "stored": [], "counts": counts}
+        saved = [{"frame_id": ref.frame_id} | dataclasses.asdict(ref.source) for ref in self.stored]
+        current = next(i for i, ref in enumerate(self.stored) if ref is self.reference)
+        return {"reference": current, "stored": saved, "counts": counts}
 
     def load_state_dict(self, state: dict) -> None:
         self._current = None  # rebuilt by the next frame's tracking
         self.counts = TrackingCounts(**state["counts"])
-        current = state.get("reference")
-        if isinstance(current, dict):  # a checkpoint from before stored references: the current one alone
-            state, current = {"stored": [current]}, 0
-        self.stored = [Reference(int(ref["frame_id"]), [PyramidLevel(**level) for level in ref["pyramid"]]) for ref in state.get("stored", [])]
-        self.reference = None if current is None else self.stored[int(current)]
+
+        def rebuilt(saved: dict) -> Reference:
+            source = PyramidSource(saved["rgb"], saved["depth"], saved["dynamic"], saved["K"])
+            return Reference(int(saved["frame_id"]), source.pyramid(self.recovery), source)
+
+        self.stored = [rebuilt(saved) for saved in state["stored"]]
+        self.reference = None if state["reference"] is None else self.stored[int(state["reference"])]
