@@ -206,7 +206,8 @@ def test_objects_package_uses_only_the_odometry_of_the_loop():
 # overlap of tivne.slam, never the loop's modules (loop, system, checkpoint, mapping, the tracker), so it can
 # be re-wired onto another loop; gtsam (an optional extra) is imported by one module only.
 BACKEND = "tivne.slam.backend"
-BACKEND_MAY_IMPORT_FROM_SLAM = ("tivne.slam.tracking.odometry", "tivne.slam.tracking.pyramid", "tivne.slam.keyframes", "tivne.slam.tracking.robust", BACKEND)
+BACKEND_MAY_IMPORT_FROM_SLAM = ("tivne.slam.tracking.odometry", "tivne.slam.tracking.pyramid", "tivne.slam.keyframes", "tivne.slam.tracking.robust",
+                                "tivne.slam.tracking.overlap", BACKEND)
 GTSAM_MODULES = {"tivne.slam.backend.graph"}
 
 

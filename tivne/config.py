@@ -15,11 +15,11 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from data_modules.sensor import KINECT_SIGMA
-from tivne.config_optional import BackendConfig, ObjectFieldConfig, ObjectsConfig, ViewerConfig
+from tivne.config_optional import BackendConfig, ObjectFieldConfig, ObjectsConfig, ReportConfig, ViewerConfig
 from tivne.settings import ConfigError, Settings, default_tree, setting
 
 __all__ = ["ConfigError", "Settings", "default_tree", "setting", "SECTIONS", "BackendConfig", "ObjectFieldConfig", "ObjectsConfig",
-           "ViewerConfig"]
+           "ReportConfig", "ViewerConfig"]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -116,16 +116,12 @@ class TrackingConfig(Settings):
     while the current one is mapped, where the order changes nothing (method 'odometry', which does
     not read the map, and ``mapping.optimize_poses`` off): the same poses and map in less wall time
     on a CPU, since the odometry's many small operations barely use a second core.
-    stored_references: past references kept for re-use (1 = only the current one): when the reference
-    goes stale, the oldest stored one whose camera was within reuse_max_m / reuse_max_deg of the new
-    pose and that sees at least reuse_min_overlap of its pixels becomes the reference again instead
-    of the new frame, so a camera that returns to a view is tracked against the view's first
-    reference, not through the chain of references since (the drift of that chain is dropped); the
-    switch is verified by aligning the frame to the stored view (it must converge and keep
-    reuse_min_overlap / reference_min_inliers). joint_references: up to this many stored references
-    that see the frame at its predicted pose as a reference must (overlap at least
-    reference_min_overlap, from within reuse_max_deg) are aligned jointly with the reference at the
-    finest pyramid level (0 = the reference alone)."""
+    stored_references: past references kept; a stale reference is replaced by the oldest stored one
+    within reuse_max_m / reuse_max_deg of the frame that sees reuse_min_overlap of it (verified by an
+    alignment keeping that overlap and reference_min_inliers), else by the frame: a camera back at a
+    view drops the drift of the references in between. joint_references: stored references seeing
+    the predicted view (overlap >= reference_min_overlap, within reuse_max_deg) aligned jointly with
+    the reference at the finest level (0 = the reference alone)."""
 
     section: ClassVar[str] = "tracking"
     method: str = setting("odometry", choices=("odometry", "odometry+field", "field"))
@@ -441,20 +437,6 @@ class ObjectiveConfig(Settings):
     def check(self) -> None:
         if self.metric == "weighted" and self.ate_weight == self.chamfer_weight == self.time_weight == 0:
             raise ConfigError("objective.metric=weighted: every weight is 0; give at least one term a weight > 0")
-
-
-@dataclass(frozen=True)
-class ReportConfig(Settings):
-    """``python -m tivne.report``: frames: how many processed frames (evenly spaced) the render / GT /
-    depth-error contact sheet re-renders from the checkpoint (0 = none); render_stride: their pixel
-    step; mesh_width: pixels across each mesh snapshot (two viewpoints per mesh time); mesh_faces:
-    at most this many faces are rasterised per snapshot (the rest are dropped evenly, for speed)."""
-
-    section: ClassVar[str] = "report"
-    frames: int = setting(4, ge=0)
-    render_stride: int = setting(2, ge=1)
-    mesh_width: int = setting(480, ge=32)
-    mesh_faces: int = setting(400_000, ge=1)
 
 
 SECTIONS: tuple[type[Settings], ...] = (

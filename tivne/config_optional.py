@@ -1,6 +1,6 @@
 """The settings of the optional parts of a run (each off or the paper's way by default): object
 fields (``field=objects``, section ``object_field``), object tracking (``objects``), the viewer
-(``viewer``) and the pose-graph back end (``backend``). Same mechanism as :mod:`tivne.config`, which
+(``viewer``), the pose-graph back end (``backend``) and ``python -m tivne.report`` (``report``). Same mechanism as :mod:`tivne.config`, which
 lists them among its sections and re-exports them."""
 
 from __future__ import annotations
@@ -163,3 +163,17 @@ class BackendConfig(Settings):
     def check(self) -> None:
         if self.method == "graph" and importlib.util.find_spec("gtsam") is None:
             raise ConfigError("backend.method=graph needs gtsam, which is not installed: pip install 'tivne[graph]' (or pip install gtsam)")
+
+
+@dataclass(frozen=True)
+class ReportConfig(Settings):
+    """``python -m tivne.report``: frames: how many processed frames (evenly spaced) the render / GT /
+    depth-error contact sheet re-renders from the checkpoint (0 = none); render_stride: their pixel
+    step; mesh_width: pixels across each mesh snapshot (two viewpoints per mesh time); mesh_faces:
+    at most this many faces are rasterised per snapshot (the rest are dropped evenly, for speed)."""
+
+    section: ClassVar[str] = "report"
+    frames: int = setting(4, ge=0)
+    render_stride: int = setting(2, ge=1)
+    mesh_width: int = setting(480, ge=32)
+    mesh_faces: int = setting(400_000, ge=1)

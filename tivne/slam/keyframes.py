@@ -9,9 +9,9 @@ from dataclasses import dataclass
 import torch
 
 from tivne.config import KeyframeConfig
-from tivne.geometry import backproject, invert_pose, project, transform_points
 from tivne.render.rays import View
 from tivne.render.samplers import sample_from_mask
+from tivne.slam.tracking.overlap import overlap_ratios
 
 
 @dataclass(frozen=True)
@@ -122,43 +122,6 @@ def view_state(view: View) -> dict:
 
 def view_from_state(state: dict) -> View:
     return View(int(state["frame_id"]), float(state["tau"]), state["rgb"], state["depth"], state["dynamic"], state["pose"])
-
-
-def overlap_ratios(
-    uv: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, c2w: torch.Tensor, kf_c2w: torch.Tensor, width: int, height: int
-) -> torch.Tensor:
-    """Share of the current frame's sampled pixels that reproject inside each keyframe (paper Eq. 11).
-
-    u_kf = K · T_w2c(kf) · T_c2w(cur) · K⁻¹ · u, counted when it lands inside the image with positive depth.
-
-    Args:
-        uv: (N, 2) sampled pixels of the current frame; depth: (N,) their depths (> 0).
-        K: (3, 3); c2w: (4, 4) current pose; kf_c2w: (F, 4, 4) keyframe poses.
-    Returns:
-        (F,) ratios in [0, 1].
-    """
-    world = transform_points(c2w, backproject(uv, depth, K))  # (N, 3)
-    cam = transform_points(invert_pose(kf_c2w)[:, None], world[None])  # (F, N, 3)
-    uv_kf, z = project(cam, K)
-    inside = (z > 0) & (uv_kf[..., 0] >= 0) & (uv_kf[..., 0] <= width - 1) & (uv_kf[..., 1] >= 0) & (uv_kf[..., 1] <= height - 1)
-    return inside.float().mean(dim=1)
-
-
-def view_overlaps(new: View, poses: list[torch.Tensor], K: torch.Tensor, pixels: int = 256) -> torch.Tensor:
-    """(F,) share of ``new``'s static pixels with depth (a regular subset of about ``pixels``) that
-    reproject inside the image of a camera at each of ``poses`` ((4, 4) c2w) (:func:`overlap_ratios`)."""
-    usable = new.depth > 0
-    if new.dynamic is not None:
-        usable = usable & ~new.dynamic
-    idx = usable.reshape(-1).nonzero()[:, 0]
-    if idx.numel() == 0 or not poses:
-        return torch.zeros(len(poses))
-    idx = idx[:: max(1, idx.numel() // pixels)]
-    h, w = new.depth.shape
-    uv = torch.stack([idx % w, idx // w], dim=-1).to(new.depth.dtype)
-    dtype = new.depth.dtype
-    stacked = torch.stack([p.to(dtype) for p in poses])
-    return overlap_ratios(uv, new.depth.reshape(-1)[idx], K.to(dtype), new.pose.to(dtype), stacked, w, h).cpu()
 
 
 @dataclass(frozen=True)

@@ -21,8 +21,8 @@ import torch
 from tivne.config import BackendConfig, OdometryConfig
 from tivne.geometry import invert_pose, pose_difference
 from tivne.render.rays import View
-from tivne.slam.keyframes import view_overlaps
 from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
+from tivne.slam.tracking.overlap import view_overlaps
 from tivne.slam.tracking.pyramid import PyramidLevel
 
 

@@ -40,9 +40,9 @@ from tivne.config import FieldTrackingConfig, LossWeights, OdometryConfig, Rende
 from tivne.field.networks import TimeVaryingField
 from tivne.geometry import invert_pose, orthonormalize_pose, pose_difference
 from tivne.render.rays import View
-from tivne.slam.keyframes import view_overlaps
 from tivne.slam.tracking.field import predict_pose, track_frame
 from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
+from tivne.slam.tracking.overlap import view_overlaps
 from tivne.slam.tracking.pyramid import PyramidLevel
 from tivne.slam.tracking.result import TrackResult, TrackStatus
 
