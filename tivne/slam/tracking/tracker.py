@@ -28,6 +28,7 @@ chain of references in between; a new reference is made only where none fits.
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 import time
 from dataclasses import dataclass
@@ -100,17 +101,15 @@ def pose_jump(pose: torch.Tensor, predicted: torch.Tensor) -> tuple[float, float
     return pose_difference(predicted, pose)
 
 
-def reusable_references(
+def views_seeing(
     view: View, stored: list[torch.Tensor], K: torch.Tensor, max_m: float, max_deg: float, min_overlap: float
-) -> list[int]:
-    """Indices, oldest first, of the ``stored`` references' c2w poses ((4, 4), oldest first) whose
-    camera was within ``max_m`` / ``max_deg`` of ``view.pose`` and whose image holds at least
+) -> list[tuple[int, float]]:
+    """(index, overlap), oldest first, of the ``stored`` references' c2w poses ((4, 4), oldest first)
+    whose camera was within ``max_m`` / ``max_deg`` of ``view.pose`` and whose image holds at least
     ``min_overlap`` of the view's static pixels with depth (reprojected at the current poses)."""
     near = [i for i, pose in enumerate(stored) if (d := pose_difference(pose, view.pose))[0] <= max_m and d[1] <= max_deg]
-    if not near:
-        return []
-    ratios = view_overlaps(view, [stored[i] for i in near], K).tolist()
-    return [i for i, r in zip(near, ratios) if r >= min_overlap]
+    ratios = view_overlaps(view, [stored[i] for i in near], K).tolist() if near else []
+    return [(i, r) for i, r in zip(near, ratios) if r >= min_overlap]
 
 
 def reference_to_drop(stored: list[torch.Tensor], max_m: float, max_deg: float) -> int:
@@ -225,10 +224,9 @@ class Tracker:
         if cfg.joint_references <= 0 or not others:
             return ()
         other_poses = [poses.pose(other.frame_id).double() for other in others]
-        turned = [pose_difference(pose, predicted)[1] <= cfg.reuse_max_deg for pose in other_poses]
-        ratios = view_overlaps(dataclasses.replace(view, pose=predicted), other_poses, K).tolist()
-        near = sorted((i for i in range(len(others)) if turned[i] and ratios[i] >= cfg.reference_min_overlap), key=lambda i: -ratios[i])
-        return tuple((others[i].pyramid, invert_pose(other_poses[i]) @ ref_pose) for i in near[: cfg.joint_references])
+        seeing = views_seeing(dataclasses.replace(view, pose=predicted), other_poses, K, math.inf, cfg.reuse_max_deg, cfg.reference_min_overlap)
+        best = sorted(seeing, key=lambda item: -item[1])[: cfg.joint_references]
+        return tuple((others[i].pyramid, invert_pose(other_poses[i]) @ ref_pose) for i, _ in best)
 
     def update_reference(
         self, view: View, K: torch.Tensor, result: TrackResult, is_keyframe: bool, poses: PoseLookup | None = None
@@ -256,8 +254,8 @@ class Tracker:
         reuse = None
         if poses is not None and cfg.reference != "frame" and self.stored:
             stored = [poses.pose(ref.frame_id).to(view.pose.dtype) for ref in self.stored]
-            candidates = reusable_references(view, stored, K, cfg.reuse_max_m, cfg.reuse_max_deg, cfg.reuse_min_overlap)
-            reuse = next((i for i in candidates[: self.REUSE_TRIES] if self._aligns(self.stored[i], stored[i], view.pose, pyramid)), None)
+            candidates = views_seeing(view, stored, K, cfg.reuse_max_m, cfg.reuse_max_deg, cfg.reuse_min_overlap)[: self.REUSE_TRIES]
+            reuse = next((i for i, _ in candidates if self._aligns(self.stored[i], stored[i], view.pose, pyramid)), None)
         if reuse is not None:
             self.reference = self.stored[reuse]
             self.counts.reused += 1
