@@ -20,9 +20,11 @@ The tracker owns no pose: the reference is a frame id, and every pose (the refer
 model's last two) is read from the run's pose owners through a :class:`PoseLookup`.
 
 Past references are kept (``tracking.stored_references``): when the reference goes stale, the oldest
-stored one that saw the new frame's view (:func:`reusable_reference`) becomes the reference again, so a
-camera that returns to a view is tracked against that view's first reference instead of through the
-chain of references in between; a new reference is made only where none fits.
+stored one that sees the new frame's view (:func:`views_seeing`, verified by an alignment) becomes the
+reference again, so a camera that returns to a view is tracked against that view's first reference
+instead of through the chain of references in between; a new reference is made only where none
+fits. Each frame is aligned jointly with its reference and the stored references that see it at the
+predicted pose (``tracking.joint_references``).
 """
 
 from __future__ import annotations
@@ -263,7 +265,7 @@ class Tracker:
             self.reference = Reference(view.frame_id, pyramid, source)
             self.stored.append(self.reference)
             if len(self.stored) > cfg.stored_references:
-                drop = 0
+                drop = 0  # without poses (no lookup given): the oldest
                 if poses is not None:  # this frame is not in the trajectory yet: its pose is the view's
                     kept = [poses.pose(ref.frame_id).double() for ref in self.stored[:-1]] + [view.pose.double()]
                     drop = reference_to_drop(kept, cfg.reuse_max_m, cfg.reuse_max_deg)
@@ -293,7 +295,8 @@ class Tracker:
         counts = dataclasses.asdict(self.counts)
         if self.reference is None:
             return {"reference": None, "stored": [], "counts": counts}
-        saved = [{"frame_id": ref.frame_id} | dataclasses.asdict(ref.source) for ref in self.stored]
+        # the source's tensors as they are (dataclasses.asdict would deep-copy them first)
+        saved = [{"frame_id": ref.frame_id} | {f.name: getattr(ref.source, f.name) for f in dataclasses.fields(ref.source)} for ref in self.stored]
         current = next(i for i, ref in enumerate(self.stored) if ref is self.reference)
         return {"reference": current, "stored": saved, "counts": counts}
 
