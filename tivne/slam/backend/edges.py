@@ -22,7 +22,7 @@ from tivne.config import BackendConfig, OdometryConfig
 from tivne.geometry import invert_pose, pose_difference
 from tivne.render.rays import View
 from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
-from tivne.slam.tracking.overlap import view_overlaps
+from tivne.slam.tracking.overlap import view_overlaps, views_seeing
 from tivne.slam.tracking.pyramid import PyramidLevel
 
 
@@ -40,14 +40,9 @@ def covisible_candidates(views: list[View], new: View, K: torch.Tensor, cfg: Bac
 def loop_candidates(views: list[View], new: View, K: torch.Tensor, cfg: BackendConfig) -> list[int]:
     """Indices into ``views`` of old keyframes (``loop_min_gap`` or more keyframes back) near ``new``
     in pose and overlapping its view, the most overlapping first, at most ``cfg.loop_candidates``."""
-    old = [
-        i for i in range(0, len(views) - cfg.loop_min_gap)
-        if (d := pose_difference(views[i].pose, new.pose))[0] <= cfg.loop_max_distance_m and d[1] <= cfg.loop_max_angle_deg
-    ]
-    if not old:
-        return []
-    ratios = view_overlaps(new, [views[i].pose for i in old], K)
-    return [old[i] for i in torch.argsort(ratios, descending=True).tolist() if ratios[i] >= cfg.min_overlap][: cfg.loop_candidates]
+    old = views[: max(0, len(views) - cfg.loop_min_gap)]
+    seeing = views_seeing(new, [v.pose for v in old], K, cfg.loop_max_distance_m, cfg.loop_max_angle_deg, cfg.min_overlap)
+    return [i for i, _ in sorted(seeing, key=lambda item: -item[1])][: cfg.loop_candidates]
 
 
 @dataclass(frozen=True)

@@ -1,11 +1,12 @@
-"""Reprojection overlap between views (paper Eq. 11): how much of one frame another camera sees.
-Used by the keyframe policy, the tracker's stored references and the pose graph's edges."""
+"""Reprojection overlap between views (paper Eq. 11): how much of one frame another camera sees,
+and which stored cameras see a view. Used by the keyframe policy, the tracker's stored references
+and the pose graph's loop candidates."""
 
 from __future__ import annotations
 
 import torch
 
-from tivne.geometry import backproject, invert_pose, project, transform_points
+from tivne.geometry import backproject, invert_pose, pose_difference, project, transform_points
 from tivne.render.rays import View
 
 
@@ -44,3 +45,14 @@ def view_overlaps(new: View, poses: list[torch.Tensor], K: torch.Tensor, pixels:
     dtype = new.depth.dtype
     stacked = torch.stack([p.to(dtype) for p in poses])
     return overlap_ratios(uv, new.depth.reshape(-1)[idx], K.to(dtype), new.pose.to(dtype), stacked, w, h).cpu()
+
+
+def views_seeing(
+    view: View, stored: list[torch.Tensor], K: torch.Tensor, max_m: float, max_deg: float, min_overlap: float
+) -> list[tuple[int, float]]:
+    """(index, overlap), in their order, of the ``stored`` c2w poses ((4, 4), e.g. oldest first)
+    whose camera was within ``max_m`` / ``max_deg`` of ``view.pose`` and whose image holds at least
+    ``min_overlap`` of the view's static pixels with depth (reprojected at the current poses)."""
+    near = [i for i, pose in enumerate(stored) if (d := pose_difference(pose, view.pose))[0] <= max_m and d[1] <= max_deg]
+    ratios = view_overlaps(view, [stored[i] for i in near], K).tolist() if near else []
+    return [(i, r) for i, r in zip(near, ratios) if r >= min_overlap]

@@ -45,7 +45,7 @@ from tivne.geometry import invert_pose, orthonormalize_pose, pose_difference
 from tivne.render.rays import View
 from tivne.slam.tracking.field import predict_pose, track_frame
 from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
-from tivne.slam.tracking.overlap import view_overlaps
+from tivne.slam.tracking.overlap import views_seeing
 from tivne.slam.tracking.pyramid import PyramidLevel
 from tivne.slam.tracking.result import TrackResult, TrackStatus
 
@@ -101,17 +101,6 @@ class TrackingCounts:
 def pose_jump(pose: torch.Tensor, predicted: torch.Tensor) -> tuple[float, float]:
     """(metres, degrees) between a tracked and a predicted c2w pose."""
     return pose_difference(predicted, pose)
-
-
-def views_seeing(
-    view: View, stored: list[torch.Tensor], K: torch.Tensor, max_m: float, max_deg: float, min_overlap: float
-) -> list[tuple[int, float]]:
-    """(index, overlap), oldest first, of the ``stored`` references' c2w poses ((4, 4), oldest first)
-    whose camera was within ``max_m`` / ``max_deg`` of ``view.pose`` and whose image holds at least
-    ``min_overlap`` of the view's static pixels with depth (reprojected at the current poses)."""
-    near = [i for i, pose in enumerate(stored) if (d := pose_difference(pose, view.pose))[0] <= max_m and d[1] <= max_deg]
-    ratios = view_overlaps(view, [stored[i] for i in near], K).tolist() if near else []
-    return [(i, r) for i, r in zip(near, ratios) if r >= min_overlap]
 
 
 def reference_to_drop(stored: list[torch.Tensor], max_m: float, max_deg: float) -> int:

@@ -3,11 +3,13 @@ tested with the keyframe policy that uses it (tests/tivne/slam/test_keyframes.py
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from tivne.geometry import se3_exp
 from tivne.render.rays import View
-from tivne.slam.tracking.overlap import view_overlaps
+from tivne.slam.tracking.overlap import view_overlaps, views_seeing
 
 W, H = 40, 30
 K = torch.tensor([[30.0, 0.0, 20.0], [0.0, 30.0, 15.0], [0.0, 0.0, 1.0]])
@@ -22,6 +24,10 @@ def slid(x: float) -> torch.Tensor:
     return se3_exp(torch.tensor([x, 0.0, 0.0, 0.0, 0.0, 0.0]))
 
 
+def turned(degrees: float) -> torch.Tensor:
+    return se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.0, math.radians(degrees), 0.0]))
+
+
 def test_view_overlaps_counts_the_static_pixels_another_camera_sees():
     # the wall is 2 * 2 * 20 / 30 = 2.67 m wide at 2 m: a camera slid by half of that sees half of it
     ratios = view_overlaps(wall_view(), [torch.eye(4), slid(4.0 / 3.0), slid(10.0)], K)
@@ -33,3 +39,13 @@ def test_view_overlaps_counts_the_static_pixels_another_camera_sees():
     assert view_overlaps(wall_view(), [], K).numel() == 0
     doubled = view_overlaps(wall_view(), [slid(4.0 / 3.0).double()], K.double())  # poses of another dtype are fine
     assert torch.allclose(doubled, ratios[1:2], atol=1e-6)
+
+
+def test_views_seeing_needs_pose_and_overlap_and_keeps_the_order():
+    stored = [turned(40.0), turned(-4.0), turned(0.0), turned(2.0), slid(0.3)]
+    seeing = views_seeing(wall_view(), stored, K, 0.1, 15.0, 0.85)
+    assert [i for i, _ in seeing] == [1, 2, 3]  # 40 degrees turned and 30 cm slid: out; the rest in order
+    assert all(r >= 0.85 for _, r in seeing) and dict(seeing)[2] == 1.0
+    assert views_seeing(wall_view(), stored[1:4], K, 0.1, 15.0, 1.01) == []  # the overlap bar not met
+    assert [i for i, _ in views_seeing(wall_view(), stored, K, math.inf, 15.0, 0.0)] == [1, 2, 3, 4]  # no distance gate
+    assert views_seeing(wall_view(), [], K, 0.1, 15.0, 0.0) == []

@@ -16,7 +16,7 @@ from tivne.field.networks import TimeVaryingField
 from tivne.geometry import invert_pose, se3_exp
 from tivne.render.rays import View
 from tivne.slam.tracking import TrackStatus
-from tivne.slam.tracking.tracker import Tracker, pose_jump, reference_to_drop, views_seeing
+from tivne.slam.tracking.tracker import Tracker, pose_jump, reference_to_drop
 
 W, H = 160, 120
 
@@ -149,20 +149,6 @@ def test_a_camera_back_at_an_earlier_view_reuses_that_views_reference(room):
     restored.load_state_dict(tracker.state_dict())
     assert [r.frame_id for r in restored.stored] == [0, 1, 2] and restored.reference is restored.stored[2]
     assert torch.equal(restored.stored[0].pyramid[0].intensity, tracker.stored[0].pyramid[0].intensity)
-
-
-def test_views_seeing_needs_pose_and_overlap_and_prefers_the_oldest(room):
-    K = room.intrinsics.K()
-    world = invert_pose(room.camera_pose(0))
-    pose = lambda deg: (world @ turned(room, deg)).double()  # noqa: E731
-    view = view_of(frame_at(room, turned(room, 2.0), 5), pose(2.0))
-    stored = [pose(40.0), pose(-4.0), pose(0.0), pose(2.0)]
-    assert [i for i, _ in views_seeing(view, stored, K, 0.1, 15.0, 0.85)] == [1, 2, 3]  # the oldest near one first
-    assert views_seeing(view, stored[:1], K, 0.1, 15.0, 0.85) == []  # too far turned
-    assert views_seeing(view, stored[1:], K, 0.1, 15.0, 1.01) == []  # the overlap bar not met
-    moved = pose(0.0).clone()
-    moved[:3, 3] += torch.tensor([0.3, 0.0, 0.0], dtype=moved.dtype)
-    assert views_seeing(view, [moved], K, 0.1, 15.0, 0.0) == []  # 30 cm away
 
 
 def test_reference_to_drop_keeps_the_oldest_and_the_current_and_thins_the_closest_pair():
