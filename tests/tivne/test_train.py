@@ -133,8 +133,8 @@ def test_presets_compose(tmp_path):
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         default = compose("config")
         fast, quality, paper = (compose("config", overrides=[f"experiment={e}"]) for e in ("fast", "quality", "paper"))
-    assert (default.mapping.every, default.mapping.iters, default.mapping.rays) == (1, 10, 512) and default.tracking.method == "odometry"
-    assert fast.mapping.iters == 5 and (quality.mapping.every, quality.mapping.iters, quality.mapping.rays) == (1, 20, 1024)
+    assert (default.mapping.every, default.mapping.iters, default.mapping.rays) == (1, 5, 512) and default.tracking.method == "odometry"
+    assert fast.mapping.iters == 3 and (quality.mapping.every, quality.mapping.iters, quality.mapping.rays) == (1, 20, 1024)
     assert default.render.n_band == 8 and quality.render.n_band == 12  # quality samples the band around the depth more densely
     assert paper.tracking.method == "field" and paper.mapping.every == 1 and paper.mapping.iters == 20 and paper.field_tracking.iters == 30
     smoke = compose_cfg("mapping.every=2", "data.max_frames=5", "masks=geometric")
