@@ -41,8 +41,8 @@ def view_overlaps(new: View, poses: list[torch.Tensor], K: torch.Tensor, pixels:
         return torch.zeros(len(poses))
     idx = idx[:: max(1, idx.numel() // pixels)]
     h, w = new.depth.shape
-    uv = torch.stack([idx % w, idx // w], dim=-1).to(new.depth.dtype)
     dtype = new.depth.dtype
+    uv = torch.stack([idx % w, idx // w], dim=-1).to(dtype)
     stacked = torch.stack([p.to(dtype) for p in poses])
     return overlap_ratios(uv, new.depth.reshape(-1)[idx], K.to(dtype), new.pose.to(dtype), stacked, w, h).cpu()
 

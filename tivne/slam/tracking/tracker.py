@@ -190,8 +190,7 @@ class Tracker:
     ) -> tuple[torch.Tensor, OdometryResult, bool]:
         ref = self.reference
         ref_pose = poses.pose(ref.frame_id).double()
-        source = PyramidSource(view.colour(), view.depth, view.dynamic, K)
-        self._current = (source, source.pyramid(self.recovery))
+        self._current = self._source_and_pyramid(view, K)
         current = self._current[1]
         to_ref = invert_pose(ref_pose)
         result = track_pyramids(ref.pyramid, current, to_ref @ predicted.double(), self.odometry, also=self._companions(view, ref, ref_pose, predicted, poses, K))
@@ -214,7 +213,7 @@ class Tracker:
         others = [other for other in self.stored if other is not ref]
         if cfg.joint_references <= 0 or not others:
             return ()
-        other_poses = [poses.pose(other.frame_id).double() for other in others]
+        other_poses = self._poses_of(others, poses)
         seeing = views_seeing(dataclasses.replace(view, pose=predicted), other_poses, K, math.inf, cfg.reuse_max_deg, cfg.reference_min_overlap)
         best = sorted(seeing, key=lambda item: -item[1])[: cfg.joint_references]
         return tuple((others[i].pyramid, invert_pose(other_poses[i]) @ ref_pose) for i, _ in best)
@@ -238,15 +237,12 @@ class Tracker:
         )
         if not stale:
             return False
-        if self._current is None:
-            source = PyramidSource(view.colour(), view.depth, view.dynamic, K)
-            self._current = (source, source.pyramid(self.recovery))
-        source, pyramid = self._current
+        source, pyramid = self._current if self._current is not None else self._source_and_pyramid(view, K)
+        known = self._poses_of(self.stored, poses) if poses is not None else None  # the stored references' poses now
         reuse = None
-        if poses is not None and cfg.reference != "frame" and self.stored:
-            stored = [poses.pose(ref.frame_id).to(view.pose.dtype) for ref in self.stored]
-            candidates = views_seeing(view, stored, K, cfg.reuse_max_m, cfg.reuse_max_deg, cfg.reuse_min_overlap)[: self.REUSE_TRIES]
-            reuse = next((i for i, _ in candidates if self._aligns(self.stored[i], stored[i], view.pose, pyramid)), None)
+        if known and cfg.reference != "frame":
+            candidates = views_seeing(view, known, K, cfg.reuse_max_m, cfg.reuse_max_deg, cfg.reuse_min_overlap)[: self.REUSE_TRIES]
+            reuse = next((i for i, _ in candidates if self._aligns(self.stored[i], known[i], view.pose, pyramid)), None)
         if reuse is not None:
             self.reference = self.stored[reuse]
             self.counts.reused += 1
@@ -254,13 +250,21 @@ class Tracker:
             self.reference = Reference(view.frame_id, pyramid, source)
             self.stored.append(self.reference)
             if len(self.stored) > cfg.stored_references:
-                drop = 0  # without poses (no lookup given): the oldest
-                if poses is not None:  # this frame is not in the trajectory yet: its pose is the view's
-                    kept = [poses.pose(ref.frame_id).double() for ref in self.stored[:-1]] + [view.pose.double()]
-                    drop = reference_to_drop(kept, cfg.reuse_max_m, cfg.reuse_max_deg)
+                # this frame is not in the trajectory yet: its pose is the view's; without poses the oldest goes
+                drop = 0 if known is None else reference_to_drop([*known, view.pose.double()], cfg.reuse_max_m, cfg.reuse_max_deg)
                 self.stored.pop(drop)
         self._current = None
         return True
+
+    def _source_and_pyramid(self, view: View, K: torch.Tensor) -> tuple[PyramidSource, list[PyramidLevel]]:
+        """This frame's pyramid (with the recovery's extra level) and what it is built from."""
+        source = PyramidSource(view.colour(), view.depth, view.dynamic, K)
+        return source, source.pyramid(self.recovery)
+
+    @staticmethod
+    def _poses_of(references: list[Reference], poses: PoseLookup) -> list[torch.Tensor]:
+        """(4, 4) float64 c2w of each reference, as its pose owner holds it now."""
+        return [poses.pose(ref.frame_id).double() for ref in references]
 
     def _aligns(self, ref: Reference, ref_pose: torch.Tensor, pose: torch.Tensor, pyramid: list[PyramidLevel]) -> bool:
         """Whether this frame (``pyramid``, c2w ``pose``) aligns to the stored ``ref`` (c2w
