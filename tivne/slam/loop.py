@@ -52,12 +52,15 @@ if TYPE_CHECKING:  # gtsam is optional: the graph's module is imported only wher
 @dataclass(frozen=True)
 class _Ahead:
     """The next frame, tracked in the worker while the current one was mapped: its timestamp, mask
-    and result, and the tracker's counts before it."""
+    and result, and the tracker's counts before it; where its objects were observed there too, their
+    observations and the object tracker's state before them (what a checkpoint saves)."""
 
     timestamp: float
     mask: torch.Tensor | None
     result: TrackResult
     counts: TrackingCounts
+    objects: tuple | None = None
+    objects_state: dict[str, Any] | None = None
 
 
 class SlamLoop:
@@ -94,6 +97,7 @@ class SlamLoop:
         self.between_frames = True  # the state is whole (a checkpoint of it can be resumed)
         self._ahead: _Ahead | None = None  # the next frame, tracked while this one was mapped
         self._worker: ThreadPoolExecutor | None = None
+        self._tracks_now: dict | None = None  # this frame's object tracks while the worker observes the next frame's
 
     @property
     def device(self) -> torch.device:
@@ -126,7 +130,8 @@ class SlamLoop:
         keyframe = new_reference = False
         mapping, objects, correction = None, (), None
         if not result.lost:  # a frame whose pose is not known is never mapped
-            view, keyframe, new_reference, mapping, correction, objects = self._integrate(k, view, frame, result, next_frame)
+            observed = None if ahead is None else ahead.objects
+            view, keyframe, new_reference, mapping, correction, objects = self._integrate(k, view, frame, result, next_frame, observed)
         if len(self.trajectory) == k:  # not yet recorded before its mapping round (see _integrate)
             self._record(frame, view)
         if not result.lost:
@@ -154,28 +159,44 @@ class SlamLoop:
         pose (``mapping.optimize_poses`` off), so the order of the two changes nothing."""
         return self.tracker.cfg.overlap and not self.tracker.cfg.reads_map and not self.mapper.cfg.optimize_poses
 
+    @property
+    def object_tracks(self) -> dict:
+        """The object tracks the map reads (``field=objects``): while the worker observes the next
+        frame's objects, a copy of this frame's, so the mapping round sees what it would in order."""
+        return self._tracks_now if self._tracks_now is not None else ({} if self.objects is None else self.objects.tracks)
+
     def _track_ahead(self, k: int, frame: Frame, view: View, next_frame: Frame) -> Future:
         """Start tracking ``next_frame`` (stream index k + 1) in the worker thread; frame k is
         recorded first (its pose is final: mapping will not move it) and is the odometry reference
-        if it became one."""
+        if it became one. Its objects are observed there too where its mask does not wait for the
+        tracked pose (the object tracker reads frames and poses, never the map); the map reads a
+        copy of frame k's tracks meanwhile (:attr:`object_tracks`)."""
         self._record(frame, view)
         counts = dataclasses.replace(self.tracker.counts)  # a checkpoint before the next step must not count it
         tau, threads = self.clock.tau(next_frame.timestamp), self.tracker.cfg.overlap_threads
+        objects_too = self.objects is not None and not self.masks.needs_tracked_pose
+        if objects_too:
+            self._tracks_now = {i: track.copy() for i, track in self.objects.tracks.items()}
 
         def work() -> _Ahead:
             torch.set_num_threads(threads)  # this thread's own OpenMP team: the map keeps the main one
             mask, result = self._track(k + 1, next_frame, tau)
-            return _Ahead(float(next_frame.timestamp), mask, result, counts)
+            if not objects_too or result.lost:
+                return _Ahead(float(next_frame.timestamp), mask, result, counts)
+            state = self.objects.state_dict()
+            observed = tuple(self.objects.observe(next_frame, result.pose, tau, mask))
+            return _Ahead(float(next_frame.timestamp), mask, result, counts, observed, state)
 
         if self._worker is None:
             self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tivne-track")
         return self._worker.submit(work)
 
     def _integrate(
-        self, k: int, view: View, frame: Frame, result, next_frame: Frame | None = None
+        self, k: int, view: View, frame: Frame, result, next_frame: Frame | None = None, observed: tuple | None = None
     ) -> tuple[View, bool, bool, Any, Correction | None, tuple]:
-        """Everything after a successful track: the mask, the objects, keyframes, mapping, voxels,
-        the odometry reference (and, where it overlaps the mapping round, the next frame's track)."""
+        """Everything after a successful track: the mask, the objects (``observed``: already, in the
+        worker), keyframes, mapping, voxels, the odometry reference (and, where it overlaps the
+        mapping round, the next frame's track)."""
         K = self.K
         if self.masks.needs_tracked_pose:
             with frozen(self.field), torch.no_grad():
@@ -183,7 +204,8 @@ class SlamLoop:
                 view = dataclasses.replace(view, dynamic=self.masks(frame, context))
         # Each moving object's SE(3), the camera pose known: before voxels and mapping, which place
         # the object fields (field=objects) by these poses.
-        objects = () if self.objects is None else tuple(self.objects.observe(frame, view.pose, view.tau, view.dynamic))
+        if observed is None:
+            observed = () if self.objects is None else tuple(self.objects.observe(frame, view.pose, view.tau, view.dynamic))
         self.keyframes.set_masks(self.masks.revise(self.keyframes.views(), view, K))  # what this frame shows about earlier keyframes
         if k == 0:  # the first frame is mapped before anything else: its voxels first
             self.allocator.allocate(self.field, view, K)
@@ -211,8 +233,11 @@ class SlamLoop:
         if ahead is None:
             new_reference = self.tracker.update_reference(view, K, result, keyframe, self.poses)
         else:
-            self._ahead = ahead.result()
-        return view, keyframe, new_reference, mapping, correction, objects
+            try:
+                self._ahead = ahead.result()
+            finally:
+                self._tracks_now = None
+        return view, keyframe, new_reference, mapping, correction, observed
 
     def _correct_poses(self) -> Correction:
         """The pose graph's step for a new keyframe: its edges and closures, every keyframe pose
@@ -268,13 +293,15 @@ class SlamLoop:
             "last_view": None if self.last_view is None else view_state(self.last_view),
             "timers": dataclasses.asdict(self.timers),
             "generator": self.generator.get_state(),
-            "objects": None if self.objects is None else self.objects.state_dict(),
+            # objects observed ahead are observed again after a resume: the state before them is saved
+            "objects": None if self.objects is None else (
+                self._ahead.objects_state if self._ahead is not None and self._ahead.objects_state is not None else self.objects.state_dict()),
             "backend": None if self.backend is None else self.backend.state_dict(),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Continue from :meth:`state_dict` (tensors on this loop's device; the field loaded first)."""
-        self._ahead = None
+        self._ahead, self._tracks_now = None, None
         self.mapper.load_state_dict(state["mapper"])  # after the field: E has its saved rows
         self.keyframes.load_state_dict(state["keyframes"])
         self.trajectory.load_state_dict(state["trajectory"])

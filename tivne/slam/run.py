@@ -134,7 +134,7 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
         backend=make_backend(s.backend, s.odometry),
     )
     if loop.objects is not None and s.object_field.tracks == "tracked":  # field=objects placed by the tracker's live poses
-        attach_tracks(field, None, s.object_field, lambda: loop.objects.tracks)
+        attach_tracks(field, None, s.object_field, lambda: loop.object_tracks)
     return loop
 
 

@@ -222,9 +222,17 @@ def test_tracking_the_next_frame_while_mapping_changes_nothing(tiny_cube):
     for k, frame in enumerate(frames):
         ahead.step(frame, frames[k + 1] if k + 1 < len(frames) else None)
         assert (ahead._ahead is not None) == (k + 1 < len(frames))  # smoke maps every frame: each one overlaps
-        # a checkpoint now counts the frames processed, not the one tracked ahead
-        assert ahead.state_dict()["tracker"]["counts"]["frames"] == k
+        # a checkpoint now counts the frames processed, not the one tracked ahead, and holds the objects
+        # as they were after this frame (the next one's are observed ahead: they wait for the next step)
+        state = ahead.state_dict()
+        assert state["tracker"]["counts"]["frames"] == k
+        assert all(float(t["taus"][-1]) <= ahead.clock.tau(frame.timestamp) for t in state["objects"]["tracks"].values())
+        assert (ahead._ahead is None) or ahead._ahead.objects is not None  # dataset masks: objects observed ahead
     assert torch.equal(ahead.poses.all(), plain.poses.all())
+    assert ahead.objects.tracks and ahead.objects.tracks.keys() == plain.objects.tracks.keys()
+    for i, track in plain.objects.tracks.items():
+        assert ahead.objects.tracks[i].observed_taus() == track.observed_taus()
+        assert torch.equal(ahead.objects.tracks[i].poses(), track.poses()) and torch.equal(ahead.objects.tracks[i].box, track.box)
     # mapping alone is not bit-reproducible on CPU (two plain runs differ by ~1e-4: threaded scatter-adds)
     torch.testing.assert_close(ahead.field.grid.embeddings, plain.field.grid.embeddings, atol=1e-3, rtol=0)
     assert ahead.tracker.reference.frame_id == plain.tracker.reference.frame_id

@@ -111,6 +111,12 @@ class ObjectTrack:
             self._at[tau] = pose_on_track(np.asarray(self._taus), torch.stack(self._poses), tau)
         return self._at[tau].clone()
 
+    def copy(self) -> ObjectTrack:
+        """A copy that later observations of this track leave as it is (no pose is changed in place)."""
+        out = ObjectTrack(self.object_id, self.name)
+        out.box, out._taus, out._poses, out._at = self.box, list(self._taus), list(self._poses), dict(self._at)
+        return out
+
     def grow_box(self, points_obj: torch.Tensor) -> None:
         """Extend :attr:`box` by (N, 3) points in object coordinates (non-finite rows ignored)."""
         p = torch.as_tensor(points_obj, dtype=torch.float64).detach().cpu().reshape(-1, 3)
