@@ -250,24 +250,25 @@ class MappingConfig(Settings):
     read the map (a tracker that does gets all first_iters at the first frame). rays per step,
     current_share of them from the current frame, the rest split over the picked keyframes. every:
     map every n-th frame. Every frame with 5 steps: each frame's track overlaps a mapping round
-    (``tracking.overlap``) and every frame is the current one once; 5 instead of 10 steps took 30-55 %
-    off s/frame on the scene family, the cube and both real tails with the same camera ATE and object
-    Chamfer within 0.1 cm but for the breathing blob at its first mesh time (1.1 -> 1.5 cm), PSNR
-    0.3-0.9 dB lower (``experiment=quality`` takes 20). optimize_poses: refine the window's poses (never the first frame's; on, 20
-    Adam steps per round added noise here: 2.6 vs 1.0 cm peak error over 40 frames). The final pass:
-    after the sequence, steps over the whole keyframe set (windows of final_window keyframes, poses
-    fixed), because the online window rarely revisits early and middle times: final_share of the
-    steps mapping took online, at most final_iters (so it stays a small part of the run; 0 = off).
+    (``tracking.overlap``); 5 instead of 10 steps took 30-55 % off s/frame (scene family, cube, real
+    tails) with the same camera ATE, object Chamfer within 0.1 cm but for the breathing blob's first
+    mesh (1.1 -> 1.5 cm), PSNR 0.3-0.9 dB lower (``experiment=quality`` takes 20). threads: torch's
+    threads for the steps (null: the process's): a step is a few hundred small ops, each a parallel
+    region whose waking threads cost more than they share, and the next frame's track wants a core of
+    its own. optimize_poses: refine the window's poses (never the first frame's; on, 20 Adam steps per
+    round added noise here: 2.6 vs 1.0 cm peak error over 40 frames). The final pass: after the
+    sequence, steps over the whole keyframe set (windows of final_window keyframes, poses fixed),
+    because the online window rarely revisits early and middle times: final_share of the steps
+    mapping took online, at most final_iters (so it stays a small part of the run; 0 = off).
     Adaptive rounds (settle_share > 0): a round whose current frame the map already explains (at its
     first step, settle_share of the current frame's rays render a depth within settle_sigmas σ(z) of
-    the measured one, σ the Kinect depth noise at that depth) stops after settle_iters steps; a frame that shows a new region or a moving
-    object gets the whole round."""
+    the measured one, σ the Kinect depth noise there) stops after settle_iters steps; a frame that shows
+    a new region or a moving object gets the whole round."""
 
     section: ClassVar[str] = "mapping"
     iters: int = setting(5, ge=1)
-    # 40 in all made the first frame ~6x cheaper and kept the 150-frame cube's figures, but on a
-    # 40-frame cube run the first-time mesh came out worse (accuracy 1.15 vs 0.59 cm): 200 in all,
-    # first_now of them at the first frame and the rest in the rounds after it.
+    # 40 in all made the first frame ~6x cheaper and kept the 150-frame cube's figures, but a 40-frame
+    # cube run's first mesh came out worse (accuracy 1.15 vs 0.59 cm): 200, first_now at once.
     first_iters: int = setting(200, ge=0)
     first_now: int = setting(30, ge=0)
     rays: int = setting(512, ge=1)
@@ -283,6 +284,7 @@ class MappingConfig(Settings):
     settle_share: float = setting(0.0, ge=0, le=1)
     settle_sigmas: float = setting(3.0, gt=0)
     settle_iters: int = setting(5, ge=1)
+    threads: int | None = setting(1, ge=1)
 
 
 @dataclass(frozen=True)

@@ -46,6 +46,20 @@ def configure_runtime(threads: int | None = None, allocator: bool = True) -> dic
     return {"threads": torch.get_num_threads(), "allocator_tuned": tune_allocator() if allocator else False}
 
 
+@contextlib.contextmanager
+def torch_threads(threads: int | None) -> Iterator[None]:
+    """torch's intra-op threads of the calling thread set to ``threads`` for the block (None: as they
+    are), then set back."""
+    before = torch.get_num_threads()
+    if threads and threads != before:
+        torch.set_num_threads(int(threads))
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != before:
+            torch.set_num_threads(before)
+
+
 class RunInterrupted(BaseException):
     """Raised in the main thread by SIGINT / SIGTERM (see :func:`interrupt_signals`).
 

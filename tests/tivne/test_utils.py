@@ -38,6 +38,26 @@ def test_configure_runtime_sets_threads():
         torch.set_num_threads(before)
 
 
+def test_torch_threads_sets_the_count_for_the_block_and_restores_it():
+    import torch
+
+    from tivne.utils import torch_threads
+
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        with torch_threads(1):
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+        with pytest.raises(RuntimeError), torch_threads(1):
+            raise RuntimeError("a failing block restores them too")
+        assert torch.get_num_threads() == 2
+        with torch_threads(None):
+            assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_a_signal_inside_deferred_interrupts_waits_for_the_end_of_the_block():
     import signal
 

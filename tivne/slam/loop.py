@@ -44,6 +44,7 @@ from tivne.slam.state import FrameReport, Timers
 from tivne.slam.tracking import Tracker, TrackingCounts, TrackResult
 from tivne.slam.tracking.field import frozen
 from tivne.slam.trajectory import PoseBook, Trajectory
+from tivne.utils import torch_threads
 
 if TYPE_CHECKING:  # gtsam is optional: the graph's module is imported only where it is built
     from tivne.slam.backend.posegraph import KeyframePoseGraph
@@ -222,14 +223,18 @@ class SlamLoop:
         if maps and next_frame is not None and self.overlaps:
             new_reference = self.tracker.update_reference(view, K, result, keyframe, self.poses)
             ahead = self._track_ahead(k, frame, view, next_frame)
-        if maps:
-            mapping = self.mapper.map_frame(view, self.keyframes, self.policy, K, self.generator, first=k == 0)
-            self.keyframes.update_poses(mapping.poses)
-            if k in mapping.poses:
-                view = dataclasses.replace(view, pose=mapping.poses[k])
-            self.last_mapped_tau = view.tau
-        if k > 0:
-            self.allocator.allocate(self.field, view, K)
+        # While the worker tracks, this thread keeps the cores the worker leaves it (oversubscribed
+        # OpenMP teams wait on each other).
+        split = max(1, torch.get_num_threads() - self.tracker.cfg.overlap_threads) if ahead is not None else None
+        with torch_threads(split):
+            if maps:
+                mapping = self.mapper.map_frame(view, self.keyframes, self.policy, K, self.generator, first=k == 0)
+                self.keyframes.update_poses(mapping.poses)
+                if k in mapping.poses:
+                    view = dataclasses.replace(view, pose=mapping.poses[k])
+                self.last_mapped_tau = view.tau
+            if k > 0:
+                self.allocator.allocate(self.field, view, K)
         if ahead is None:
             new_reference = self.tracker.update_reference(view, K, result, keyframe, self.poses)
         else:

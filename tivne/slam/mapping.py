@@ -18,6 +18,7 @@ from tivne.render.rays import View
 from tivne.render.renderer import render_pixels
 from tivne.render.samplers import PixelPool, PixelSampler
 from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
+from tivne.utils import torch_threads
 
 
 @dataclass(frozen=True)
@@ -114,6 +115,10 @@ class Mapper:
         Returns the refined (V, 4, 4) poses (unchanged where ``fixed``) and the last step's loss terms
         with ``steps`` (the steps run), ``skipped_steps`` and, when settling, ``explained``.
         """
+        with torch_threads(self.cfg.threads):
+            return self._run(views, fixed, iters, K, generator, current_share, settle)
+
+    def _run(self, views, fixed, iters, K, generator, current_share, settle) -> tuple[torch.Tensor, dict[str, float]]:
         cfg = self.cfg
         base = torch.stack([v.pose.detach() for v in views])
         movable = torch.tensor([not f for f in fixed], device=base.device, dtype=base.dtype)[:, None]

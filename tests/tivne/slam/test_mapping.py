@@ -59,6 +59,23 @@ def test_mapper_run_reduces_loss(frames):
     torch.testing.assert_close(poses, torch.eye(4)[None])
 
 
+@pytest.mark.parametrize("threads", [1, None])
+def test_mapping_steps_run_on_the_configured_threads(frames, monkeypatch, threads):
+    import tivne.slam.mapping as mapping
+
+    v0, _, K, f0 = frames
+    seen, render = [], mapping.render_pixels
+    monkeypatch.setattr(mapping, "render_pixels", lambda *a, **k: (seen.append(torch.get_num_threads()), render(*a, **k))[1])
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        mapper = Mapper(make_field(f0, K), MappingConfig(rays=64, threads=threads), PixelSampler(), RenderConfig(), LossWeights())
+        mapper.run([v0], [True], 3, K, torch.Generator().manual_seed(0))
+        assert seen == [threads or 2] * 3 and torch.get_num_threads() == 2  # the caller's count is back
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_fixed_view_pose_unchanged_and_movable_view_refined(frames):
     v0, v1, K, f0 = frames
     field = make_field(f0, K)
