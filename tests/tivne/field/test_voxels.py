@@ -10,6 +10,7 @@ from tivne.field.voxels import (
     GridCapacityError,
     SparseVoxelGrid,
     bracketing_observations,
+    merge_order,
     pack_coords,
     sorted_lookup,
     trilinear_weights,
@@ -62,6 +63,27 @@ def test_sorted_lookup_found_and_missing():
     assert (pos >= 0).all() and (pos <= 2).all()
     pos, found = sorted_lookup(torch.zeros(0, dtype=torch.long), torch.tensor([1, 2]))
     assert not found.any()
+
+
+@pytest.mark.parametrize("n, m", [(0, 5), (5, 0), (1000, 37), (37, 1000)])
+def test_merge_order_sorts_two_sorted_disjoint_key_sets(n, m):
+    keys = torch.randperm(10 * (n + m) + 1, generator=torch.Generator().manual_seed(n))[: n + m] - 3 * (n + m)
+    a, b = keys[:n].sort().values, keys[n:].sort().values
+    merged = torch.cat([a, b])[merge_order(a, b)]
+    assert torch.equal(merged, keys.sort().values)
+
+
+def test_a_growing_map_keeps_its_keys_sorted_and_its_rows():
+    grid = SparseVoxelGrid(voxel_size=0.1, embed_dim=2, surface_cell=0.02)
+    g = torch.Generator().manual_seed(1)
+    for _ in range(5):
+        grid.allocate(torch.rand(300, 3, generator=g) * 2 - 1, dilation=1)
+        for keys in (grid.voxel_keys, grid.corner_keys, grid.surface_keys):
+            assert bool((keys[1:] > keys[:-1]).all())
+    # every voxel's corner rows are the rows of its corners' keys
+    corners = pack_coords(unpack_keys(grid.voxel_keys)[:, None, :] + CORNER_OFFSETS)
+    pos, found = sorted_lookup(grid.corner_keys, corners)
+    assert found.all() and torch.equal(grid.corner_rows[pos], grid.voxel_corner_rows)
 
 
 def test_trilinear_weights_corners_and_partition_of_unity():
