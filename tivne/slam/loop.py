@@ -53,13 +53,15 @@ if TYPE_CHECKING:  # gtsam is optional: the graph's module is imported only wher
 @dataclass(frozen=True)
 class _Ahead:
     """The next frame, tracked in the worker while the current one was mapped: its timestamp, mask
-    and result, and the tracker's counts before it; where its objects were observed there too, their
-    observations and the object tracker's state before them (what a checkpoint saves)."""
+    and result, the tracker's counts before it and whether the current frame switched the odometry
+    reference (updated there first); where its objects were observed there too, their observations
+    and the object tracker's state before them (what a checkpoint saves)."""
 
     timestamp: float
     mask: torch.Tensor | None
     result: TrackResult
     counts: TrackingCounts
+    switched: bool = False
     objects: tuple | None = None
     objects_state: dict[str, Any] | None = None
 
@@ -166,27 +168,30 @@ class SlamLoop:
         frame's objects, a copy of this frame's, so the mapping round sees what it would in order."""
         return self._tracks_now if self._tracks_now is not None else ({} if self.objects is None else self.objects.tracks)
 
-    def _track_ahead(self, k: int, frame: Frame, view: View, next_frame: Frame) -> Future:
-        """Start tracking ``next_frame`` (stream index k + 1) in the worker thread; frame k is
-        recorded first (its pose is final: mapping will not move it) and is the odometry reference
-        if it became one. Its objects are observed there too where its mask does not wait for the
-        tracked pose (the object tracker reads frames and poses, never the map); the map reads a
-        copy of frame k's tracks meanwhile (:attr:`object_tracks`)."""
+    def _track_ahead(self, k: int, frame: Frame, view: View, result: TrackResult, keyframe: bool, next_frame: Frame) -> Future:
+        """In the worker thread: frame k's odometry reference update (``update_reference``), then the
+        track of ``next_frame`` (stream index k + 1). Frame k is recorded first: its pose is final
+        (mapping will not move it) and the reference update reads it. The next frame's objects are
+        observed there too where its mask does not wait for the tracked pose (the object tracker
+        reads frames and poses, never the map); the map reads a copy of frame k's tracks meanwhile
+        (:attr:`object_tracks`)."""
         self._record(frame, view)
-        counts = dataclasses.replace(self.tracker.counts)  # a checkpoint before the next step must not count it
-        tau, threads = self.clock.tau(next_frame.timestamp), self.tracker.cfg.overlap_threads
+        K, tau, threads = self.K, self.clock.tau(next_frame.timestamp), self.tracker.cfg.overlap_threads
         objects_too = self.objects is not None and not self.masks.needs_tracked_pose
         if objects_too:
             self._tracks_now = {i: track.copy() for i, track in self.objects.tracks.items()}
 
         def work() -> _Ahead:
             torch.set_num_threads(threads)  # this thread's own OpenMP team: the map keeps the main one
-            mask, result = self._track(k + 1, next_frame, tau)
-            if not objects_too or result.lost:
-                return _Ahead(float(next_frame.timestamp), mask, result, counts)
+            switched = self.tracker.update_reference(view, K, result, keyframe, self.poses)
+            counts = dataclasses.replace(self.tracker.counts)  # a checkpoint before the next step must not count it
+            mask, next_result = self._track(k + 1, next_frame, tau)
+            ahead = _Ahead(float(next_frame.timestamp), mask, next_result, counts, switched)
+            if not objects_too or next_result.lost:
+                return ahead
             state = self.objects.state_dict()
-            observed = tuple(self.objects.observe(next_frame, result.pose, tau, mask))
-            return _Ahead(float(next_frame.timestamp), mask, result, counts, observed, state)
+            observed = tuple(self.objects.observe(next_frame, next_result.pose, tau, mask))
+            return dataclasses.replace(ahead, objects=observed, objects_state=state)
 
         if self._worker is None:
             self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tivne-track")
@@ -221,8 +226,7 @@ class SlamLoop:
         mapping, ahead, new_reference = None, None, False
         maps = k == 0 or k % self.mapper.cfg.every == 0
         if maps and next_frame is not None and self.overlaps:
-            new_reference = self.tracker.update_reference(view, K, result, keyframe, self.poses)
-            ahead = self._track_ahead(k, frame, view, next_frame)
+            ahead = self._track_ahead(k, frame, view, result, keyframe, next_frame)
         # While the worker tracks, this thread keeps the cores the worker leaves it (oversubscribed
         # OpenMP teams wait on each other).
         split = max(1, torch.get_num_threads() - self.tracker.cfg.overlap_threads) if ahead is not None else None
@@ -240,6 +244,7 @@ class SlamLoop:
         else:
             try:
                 self._ahead = ahead.result()
+                new_reference = self._ahead.switched
             finally:
                 self._tracks_now = None
         return view, keyframe, new_reference, mapping, correction, observed
