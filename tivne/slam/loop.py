@@ -3,10 +3,11 @@ final pass, ``state_dict()`` / ``load_state_dict()`` for checkpoints. No Lightni
 the LightningModule (:mod:`tivne.slam.system`) adapts it to a Trainer, :mod:`tivne.slam.results`
 writes what it holds, and a plain ``for frame in frames: loop.step(frame)`` runs it too.
 
-One frame: masks -> track -> (mask after tracking, revise keyframe masks) -> keyframe -> map ->
-allocate -> record. Given the next frame too (``step(frame, next_frame)``), the next frame's mask
-and track run in a worker thread during this frame's mapping round where that changes nothing
-(:attr:`SlamLoop.overlaps`). Each component owns its settings and its state:
+One frame: masks -> track -> (mask after tracking, revise keyframe masks) -> objects -> keyframe ->
+map -> allocate -> odometry reference -> record. Given the next frame too (``step(frame,
+next_frame)``), this frame's reference update and the next frame's mask, track and objects run in a
+worker thread during this frame's mapping round where that changes nothing (:attr:`SlamLoop.overlaps`);
+the mapping thread keeps the cores the worker leaves. Each component owns its settings and its state:
 
     clock       Clock: the one conversion of timestamps to field time τ (set by the first frame)
     masks       MaskProvider: the motion mask (before or after tracking)
