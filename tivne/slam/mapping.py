@@ -118,7 +118,11 @@ class Mapper:
         with torch_threads(self.cfg.threads):
             return self._run(views, fixed, iters, K, generator, current_share, settle)
 
-    def _run(self, views, fixed, iters, K, generator, current_share, settle) -> tuple[torch.Tensor, dict[str, float]]:
+    def _run(
+        self, views: list[View], fixed: list[bool], iters: int, K: torch.Tensor, generator: torch.Generator | None,
+        current_share: float | None, settle: bool,
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """:meth:`run`'s steps (on the threads it set)."""
         cfg = self.cfg
         base = torch.stack([v.pose.detach() for v in views])
         movable = torch.tensor([not f for f in fixed], device=base.device, dtype=base.dtype)[:, None]
