@@ -56,7 +56,7 @@ class _Ahead:
     """The next frame, tracked in the worker while the current one was mapped: its timestamp, mask
     and result, the tracker's counts before it and whether the current frame switched the odometry
     reference (updated there first); where its objects were observed there too, their observations
-    and the object tracker's state before them (what a checkpoint saves)."""
+    and the object tracker's snapshot from before them (what a checkpoint saves)."""
 
     timestamp: float
     mask: torch.Tensor | None
@@ -101,7 +101,7 @@ class SlamLoop:
         self.between_frames = True  # the state is whole (a checkpoint of it can be resumed)
         self._ahead: _Ahead | None = None  # the next frame, tracked while this one was mapped
         self._worker: ThreadPoolExecutor | None = None
-        self._tracks_now: dict | None = None  # this frame's object tracks while the worker observes the next frame's
+        self._objects_now: dict | None = None  # the object tracker's snapshot while the worker observes the next frame's
 
     @property
     def device(self) -> torch.device:
@@ -167,7 +167,9 @@ class SlamLoop:
     def object_tracks(self) -> dict:
         """The object tracks the map reads (``field=objects``): while the worker observes the next
         frame's objects, a copy of this frame's, so the mapping round sees what it would in order."""
-        return self._tracks_now if self._tracks_now is not None else ({} if self.objects is None else self.objects.tracks)
+        if self._objects_now is not None:
+            return self._objects_now["tracks"]
+        return {} if self.objects is None else self.objects.tracks
 
     def _track_ahead(self, k: int, frame: Frame, view: View, result: TrackResult, keyframe: bool, next_frame: Frame) -> Future:
         """In the worker thread: frame k's odometry reference update (``update_reference``), then the
@@ -179,8 +181,7 @@ class SlamLoop:
         self._record(frame, view)
         K, tau, threads = self.K, self.clock.tau(next_frame.timestamp), self.tracker.cfg.overlap_threads
         objects_too = self.objects is not None and not self.masks.needs_tracked_pose
-        if objects_too:
-            self._tracks_now = {i: track.copy() for i, track in self.objects.tracks.items()}
+        before = self._objects_now = self.objects.snapshot() if objects_too else None
 
         def work() -> _Ahead:
             torch.set_num_threads(threads)  # this thread's own OpenMP team: the map keeps the main one
@@ -190,9 +191,8 @@ class SlamLoop:
             ahead = _Ahead(float(next_frame.timestamp), mask, next_result, counts, switched)
             if not objects_too or next_result.lost:
                 return ahead
-            state = self.objects.state_dict()
             observed = tuple(self.objects.observe(next_frame, next_result.pose, tau, mask))
-            return dataclasses.replace(ahead, objects=observed, objects_state=state)
+            return dataclasses.replace(ahead, objects=observed, objects_state=before)
 
         if self._worker is None:
             self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tivne-track")
@@ -247,7 +247,7 @@ class SlamLoop:
                 self._ahead = ahead.result()
                 new_reference = self._ahead.switched
             finally:
-                self._tracks_now = None
+                self._objects_now = None
         return view, keyframe, new_reference, mapping, correction, observed
 
     def _correct_poses(self) -> Correction:
@@ -305,14 +305,13 @@ class SlamLoop:
             "timers": dataclasses.asdict(self.timers),
             "generator": self.generator.get_state(),
             # objects observed ahead are observed again after a resume: the state before them is saved
-            "objects": None if self.objects is None else (
-                self._ahead.objects_state if self._ahead is not None and self._ahead.objects_state is not None else self.objects.state_dict()),
+            "objects": None if self.objects is None else self.objects.state_dict(None if self._ahead is None else self._ahead.objects_state),
             "backend": None if self.backend is None else self.backend.state_dict(),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Continue from :meth:`state_dict` (tensors on this loop's device; the field loaded first)."""
-        self._ahead, self._tracks_now = None, None
+        self._ahead, self._objects_now = None, None
         self.mapper.load_state_dict(state["mapper"])  # after the field: E has its saved rows
         self.keyframes.load_state_dict(state["keyframes"])
         self.trajectory.load_state_dict(state["trajectory"])

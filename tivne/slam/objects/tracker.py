@@ -425,14 +425,21 @@ class ObjectTracker:
             paths.append(write_tum_trajectory(run.object_path(tr.object_id), stamps, tr.poses()))
         return paths
 
-    def state_dict(self) -> dict[str, Any]:
-        """The tracks and identities (not the reference pyramids: after a restore each object's
-        next observation becomes its reference, at its predicted pose)."""
+    def snapshot(self) -> dict[str, Any]:
+        """What :meth:`state_dict` saves, as it is now, copied cheaply (no tensor is copied: the
+        tracker replaces, never changes, the poses and points it saves)."""
+        return {"tracks": {k: tr.copy() for k, tr in self.tracks.items()}, "stamps": {k: dict(v) for k, v in self.stamps.items()},
+                "live": dict(self.live), "next_id": self.next_id}
+
+    def state_dict(self, snapshot: dict[str, Any] | None = None) -> dict[str, Any]:
+        """The tracks and identities, now or as a :meth:`snapshot` held them (not the reference
+        pyramids: after a restore each object's next observation becomes its reference, at its predicted pose)."""
+        s = snapshot or self.snapshot()
         return {
-            "tracks": {k: tr.state_dict() for k, tr in self.tracks.items()},
-            "stamps": {k: dict(v) for k, v in self.stamps.items()},
-            "live": {k: {"points": lv.points, "size": lv.size, "last_time": lv.last_time} for k, lv in self.live.items()},
-            "next_id": self.next_id,
+            "tracks": {k: tr.state_dict() for k, tr in s["tracks"].items()},
+            "stamps": s["stamps"],
+            "live": {k: {"points": lv.points, "size": lv.size, "last_time": lv.last_time} for k, lv in s["live"].items()},
+            "next_id": s["next_id"],
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
