@@ -260,10 +260,10 @@ class MappingConfig(Settings):
     sequence, steps over the whole keyframe set (windows of final_window keyframes, poses fixed),
     because the online window rarely revisits early and middle times: final_share of the steps
     mapping took online, at most final_iters (so it stays a small part of the run; 0 = off).
-    Adaptive rounds (settle_share > 0): a round whose current frame the map already explains (at its
-    first step, settle_share of the current frame's rays render a depth within settle_sigmas σ(z) of
-    the measured one, σ the Kinect depth noise there) stops after settle_iters steps; a frame that shows
-    a new region or a moving object gets the whole round."""
+    Adaptive rounds (settle_share > 0): a round whose current frame the map explains (at its first step, settle_share of its
+    rays render a depth within settle_sigmas σ(z), the Kinect noise, of the measured one) stops after settle_iters steps. Off:
+    iters=10 settled at 5 gave the breathing blob a better first mesh (1.3 vs 1.5 cm at 5 steps) but few rounds settle where
+    objects move or depth is real (s/frame cube 0.128 -> 0.186, fr1 tail 0.093 -> 0.144, same ATE)."""
 
     section: ClassVar[str] = "mapping"
     iters: int = setting(5, ge=1)
