@@ -40,7 +40,7 @@ from tivne.slam.allocation import VoxelAllocator
 from tivne.slam.backend.apply import Correction, follow_corrections
 from tivne.slam.keyframes import KeyframePolicy, KeyframeStore, view_from_state, view_state
 from tivne.slam.mapping import Mapper, final_pass
-from tivne.slam.objects import ObjectTracker
+from tivne.slam.objects import ObjectObservation, ObjectTrack, ObjectTracker
 from tivne.slam.state import FrameReport, Timers
 from tivne.slam.tracking import Tracker, TrackingCounts, TrackResult
 from tivne.slam.tracking.field import frozen
@@ -63,7 +63,7 @@ class _Ahead:
     result: TrackResult
     counts: TrackingCounts
     switched: bool = False
-    objects: tuple | None = None
+    objects: tuple[ObjectObservation, ...] | None = None
     objects_state: dict[str, Any] | None = None
 
 
@@ -164,7 +164,7 @@ class SlamLoop:
         return self.tracker.cfg.overlap and not self.tracker.cfg.reads_map and not self.mapper.cfg.optimize_poses
 
     @property
-    def object_tracks(self) -> dict:
+    def object_tracks(self) -> dict[int, ObjectTrack]:
         """The object tracks the map reads (``field=objects``): while the worker observes the next
         frame's objects, a copy of this frame's, so the mapping round sees what it would in order."""
         if self._objects_now is not None:
@@ -199,8 +199,9 @@ class SlamLoop:
         return self._worker.submit(work)
 
     def _integrate(
-        self, k: int, view: View, frame: Frame, result, next_frame: Frame | None = None, observed: tuple | None = None
-    ) -> tuple[View, bool, bool, Any, Correction | None, tuple]:
+        self, k: int, view: View, frame: Frame, result: TrackResult, next_frame: Frame | None = None,
+        observed: tuple[ObjectObservation, ...] | None = None,
+    ) -> tuple[View, bool, bool, Any, Correction | None, tuple[ObjectObservation, ...]]:
         """Everything after a successful track: the mask, the objects (``observed``: already, in the
         worker), keyframes, mapping, voxels, the odometry reference (and, where it overlaps the
         mapping round, the next frame's track)."""
