@@ -9,7 +9,8 @@
 Each sequence runs ``tivne.train`` (default config plus the overrides) in its own process (its peak
 RSS is its own). Meshes are evaluated at three times (20 %, 50 % and 90 % of the sequence); per
 moving object the Chamfer distance over the part some camera saw within ±0.5 s of the mesh time
-(``tivne.evaluation``). Columns: ATE, per-object Chamfer at the three times, the worst object
+(``tivne.evaluation``; "absent": some camera saw it then but the mesh has no surface within 5 cm of
+its box, a failure; "–": no camera saw it). Columns: ATE, per-object Chamfer at the three times, the worst object
 track's error (``objects.track=true``: first-frame aligned ATE and rotation RMSE), the largest ghost
 fraction, PSNR of re-rendered frames, s/frame and peak RSS. Figures are printed, never asserted.
 """
@@ -94,15 +95,19 @@ def run_sequence(name: str, dataset: list[str], extra: list[str]) -> dict | None
 
 def summarise(metrics: dict, times: list[float]) -> dict:
     """The suite's figures of one run: ATE, per-object Chamfer at each time, ghosts, PSNR, speed, memory."""
-    chamfer = {}
+    chamfer, absent = {}, {}
     for key, value in metrics.items():
         for i, t in enumerate(times):
             prefix = f"mesh_t{t:.2f}_"
             if key.startswith(prefix) and key.endswith("_chamfer_m") and not key.startswith(prefix + "static"):
-                chamfer.setdefault(key[len(prefix): -len("_chamfer_m")], [None] * len(times))[i] = value
+                name = key[len(prefix): -len("_chamfer_m")]
+                chamfer.setdefault(name, [None] * len(times))[i] = value
+                # seen by the camera around t, yet no surface near it: a failure, not a blank
+                why = str(metrics.get(f"{prefix}{name}_reason") or "")
+                absent.setdefault(name, [False] * len(times))[i] = "no reconstructed surface" in why and "no camera saw it" not in why
     keys = ("ate_rmse_m", "ghost_fraction_max", "psnr_db", "s_per_frame", "final_refine_share", "peak_rss_mb", "tracking_lost", "frames",
             "object_ate_max_m", "object_rot_max_deg")
-    return {k: metrics.get(k) for k in keys} | {"chamfer_m": chamfer, "times": times}
+    return {k: metrics.get(k) for k in keys} | {"chamfer_m": chamfer, "absent": absent, "times": times}
 
 
 def fmt(value, scale: float = 1.0, digits: int = 2) -> str:
@@ -117,7 +122,9 @@ def table(results: dict[str, dict | None], reference: dict | None = None) -> str
         if r is None:
             lines.append(f"| {name} | failed | | | | | | |")
             continue
-        objs = "; ".join(f"{o} " + "/".join(fmt(v, 100, 1) for v in vals) for o, vals in sorted(r["chamfer_m"].items())) or "–"
+        gone = r.get("absent", {})
+        objs = "; ".join(f"{o} " + "/".join("absent" if gone.get(o, [False] * len(vals))[i] else fmt(v, 100, 1) for i, v in enumerate(vals))
+                         for o, vals in sorted(r["chamfer_m"].items())) or "–"
         track = f"{fmt(r.get('object_ate_max_m'), 100)} / {fmt(r.get('object_rot_max_deg'))}" if r.get("object_ate_max_m") is not None else "–"
         cells = [fmt(r["ate_rmse_m"], 100), objs, track, fmt(r["ghost_fraction_max"], 1, 3), fmt(r["psnr_db"], 1, 1),
                  fmt(r["s_per_frame"], 1, 3), fmt(r["peak_rss_mb"], 1, 0)]
