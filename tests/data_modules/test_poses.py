@@ -194,3 +194,23 @@ def test_pose_on_track_interpolates_inside_and_continues_the_end_velocity_outsid
     assert float(off) < 0.0045
     with pytest.raises(ValueError):
         P.pose_on_track(np.zeros(0), torch.zeros(0, 4, 4), 0.0)
+
+
+def test_pose_on_track_turns_about_the_pivot_it_is_given_and_the_long_way_across_a_gap():
+    # A box turning in place at 3 rad/s about its own axis, tracked with its origin 10 cm off that axis
+    # (the centre of the points first seen), unseen for 1.5 s (4.5 rad, more than half a turn).
+    off = torch.tensor([0.1, 0.0, 0.0], dtype=torch.float64)  # the axis in body coordinates
+
+    def turning(t: float) -> torch.Tensor:
+        T = torch.eye(4, dtype=torch.float64)
+        T[:3, :3] = P.rotation_from_vector(torch.tensor([0.0, 0.0, 3.0 * t], dtype=torch.float64))
+        T[:3, 3] = torch.tensor([0.5, 0.2, 1.0], dtype=torch.float64) - T[:3, :3] @ off
+        return T
+
+    times = np.concatenate([np.arange(0.0, 0.2, 1 / 30), np.arange(1.7, 1.9, 1 / 30)])
+    poses = torch.stack([turning(float(t)) for t in times])
+    for t in (0.5, 0.9, 1.4, 2.3):  # in the gap, after the end
+        torch.testing.assert_close(P.pose_on_track(times, poses, t, pivot=off), turning(t), atol=1e-9, rtol=0)
+    assert float((P.pose_on_track(times, poses, 0.9)[:3, 3] - turning(0.9)[:3, 3]).norm()) > 0.01  # about the origin
+    short_way = P.pose_on_track(times, poses, 0.9, baseline=2.0, pivot=off)  # SLERP alone across the gap
+    assert float(P.rotation_vector(short_way[:3, :3] @ turning(0.9)[:3, :3].T).norm()) > 1.0

@@ -22,8 +22,8 @@ from tivne.field.objects import ObjectField, ObjectPoses, ObjectSlot
 
 class RecordedTrack:
     """A track rebuilt from its samples: (N,) τ increasing, (N, 4, 4) object-to-world, box (2, 3)
-    or None. Between samples SLERP + lerp; outside them the end pose continued at the end's velocity,
-    as the live track (:func:`data_modules.poses.pose_on_track`)."""
+    or None. Between samples SLERP + lerp of the box's middle; outside them the end pose continued at
+    the end's velocity, as the live track (:func:`data_modules.poses.pose_on_track`)."""
 
     def __init__(self, taus: torch.Tensor, poses: torch.Tensor, box: torch.Tensor | None) -> None:
         self.taus = np.asarray(torch.as_tensor(taus, dtype=torch.float64))
@@ -31,7 +31,7 @@ class RecordedTrack:
         self.box = None if box is None else torch.as_tensor(box, dtype=torch.float64)
 
     def pose_at(self, tau: float) -> torch.Tensor:
-        return pose_on_track(self.taus, self.poses, float(tau))
+        return pose_on_track(self.taus, self.poses, float(tau), pivot=None if self.box is None else self.box.mean(0))
 
     def observed_taus(self) -> list[float]:
         return [float(t) for t in self.taus]

@@ -98,7 +98,7 @@ class ObjectTrack:
 
     def pose_at(self, tau: float) -> torch.Tensor:
         """(4, 4) float64 object-to-world pose at field time ``tau``: SLERP rotation + linear
-        translation between the bracketing observations; before the first / after the last
+        translation of the box's :attr:`middle` between the bracketing observations; before the first / after the last
         observation the end pose continued at the end's velocity (:func:`data_modules.poses.pose_on_track`:
         an object entering or leaving the view keeps moving; readers place it only near an
         observation). Raises on an empty track."""
@@ -108,7 +108,7 @@ class ObjectTrack:
         if tau not in self._at:
             if len(self._at) >= MAX_CACHED_TIMES:
                 self._at.clear()
-            self._at[tau] = pose_on_track(np.asarray(self._taus), torch.stack(self._poses), tau)
+            self._at[tau] = pose_on_track(np.asarray(self._taus), torch.stack(self._poses), tau, pivot=self.middle)
         return self._at[tau].clone()
 
     def copy(self) -> ObjectTrack:
@@ -127,6 +127,7 @@ class ObjectTrack:
         if self.box is not None:
             lo, hi = torch.minimum(lo, self.box[0]), torch.maximum(hi, self.box[1])
         self.box = torch.stack([lo, hi])
+        self._at.clear()  # poses between observations turn about the box's middle
 
     def state_dict(self) -> dict[str, Any]:
         return {

@@ -69,6 +69,21 @@ def test_a_pose_asked_for_before_a_new_observation_is_not_served_stale_after_it(
     assert track.observed_near(1.2, 0.25) and not track.observed_near(1.3, 0.25) and not track.observed_near(0.7, 0.25)
 
 
+def test_pose_at_turns_the_object_about_its_box_middle():
+    # Observed turning 90 deg about z through (1, 0, 0) in object coordinates, the box around that point:
+    # halfway the middle stays where it was and the object has turned 45 deg about it.
+    A = _rz(0)
+    B = _rz(90, (1.0, -1.0, 0.0))  # B maps (1, 0, 0) to (1, 0, 0)
+    track = ObjectTrack.from_poses(1, [0.0, 1.0], torch.stack([A, B]))
+    about_origin = track.pose_at(0.5)
+    track.grow_box(torch.tensor([[0.8, -0.2, -0.2], [1.2, 0.2, 0.2]], dtype=torch.float64))
+    mid = track.pose_at(0.5)  # not the pose cached before the box
+    middle = torch.tensor([1.0, 0.0, 0.0, 1.0], dtype=torch.float64)
+    torch.testing.assert_close(mid @ middle, middle, atol=1e-12, rtol=0)
+    torch.testing.assert_close(mid[:3, :3], _rz(45)[:3, :3], atol=1e-12, rtol=0)
+    assert float((about_origin @ middle - middle).norm()) > 0.2  # the chord of the middle's arc, about the origin
+
+
 def test_box_and_state_dict_round_trip():
     track = ObjectTrack.from_poses(7, [0.0, 1.0], torch.stack([_rz(0), _rz(90, (1, 0, 0))]), name=None)
     assert track.box is None
