@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -67,11 +68,12 @@ def run_one(scene: str, source: str, ns: argparse.Namespace) -> dict | None:
     args = overrides(scene, source, ns.frames, (ns.width, ns.height), ns.threads)
     proc = subprocess.run([sys.executable, __file__, "--child", run_dir, *args], capture_output=True, text=True,
                           env=dict(os.environ, OMP_WAIT_POLICY="PASSIVE"))
+    shutil.rmtree(run_dir, ignore_errors=True)  # the figures are in its stdout; the run folder is ~50 MB
     lines = [line for line in proc.stdout.splitlines() if line.startswith("FIGURES ")]
     if proc.returncode != 0 or not lines:
         print(f"{scene}/{source}: failed (exit {proc.returncode}): {(proc.stderr.strip().splitlines() or ['?'])[-1]}", file=sys.stderr)
         return None
-    print(f"done: {scene}/{source} ({run_dir})", file=sys.stderr, flush=True)
+    print(f"done: {scene}/{source}", file=sys.stderr, flush=True)
     return json.loads(lines[-1][len("FIGURES "):])
 
 

@@ -74,7 +74,8 @@ def child(overrides: list[str]) -> None:
     register_defaults()  # the config nodes conf/*.yaml compose onto (the mask providers' defaults among them)
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["trainer.progress_bar=false", "output.image_every=0", *overrides])
-    metrics = run(cfg, Path(tempfile.mkdtemp(prefix="tivne-suite-")))
+    with tempfile.TemporaryDirectory(prefix="tivne-suite-") as run_dir:  # ~60-90 MB a run: a week of suites filled the disk
+        metrics = run(cfg, Path(run_dir))
     metrics["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print("FIGURES " + json.dumps(metrics))
 
