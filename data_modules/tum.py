@@ -23,10 +23,12 @@ keeps the 1:1 colour/depth pixel registration. Pixels that map from outside the 
 Colour not registered to depth (e.g. 7-Scenes: raw Kinect streams, colour camera f ≈ 0.9 × the depth
 camera's): ``colour_camera=[fx, fy, cx, cy]`` gives the colour camera's intrinsics; each frame's colour
 is then resampled onto the depth camera's pixels (through the colour camera's distortion, if any), so
-``Frame.rgb`` and ``Frame.depth`` share pixels as the data contract requires. The model is the
-homography K_colour K⁻¹ (the two cameras' centres taken as one: a baseline's parallax at the scene's
-usual depth is absorbed by the principal point). ``python -m data_modules.inspect ... colour_camera=true`` estimates it from the
-frames.
+``Frame.rgb`` and ``Frame.depth`` share pixels as the data contract requires. ``colour_offset=[x, y]``
+(metres) is the colour camera's centre in the depth camera's frame: each pixel's colour is then taken
+where its own depth projects (the baseline's parallax, fx·o/Z, :func:`data_modules.registration.with_parallax`);
+without it the model is the homography K_colour K⁻¹ and the parallax at the scene's usual depth goes
+into the principal point. ``python -m data_modules.inspect ... colour_camera=true`` estimates the colour
+camera from the frames (the offset comes from the rig's calibration).
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from data_modules.io import (
     require_dir,
 )
 from data_modules.poses import interpolate_poses, orthonormalize_pose
-from data_modules.registration import colour_maps
+from data_modules.registration import colour_maps, with_parallax
 from data_modules.sequence import SequenceDataset
 from data_modules.tables import finite_float, read_pose_table, read_table
 from data_modules.timestamps import associate_by_timestamp, check_monotonic_timestamps
@@ -110,13 +112,23 @@ def _check_numbers(**values: object) -> None:
             raise DatasetError(f"dataset.{key}", f"must be a finite number {'> 0' if strict else '>= 0'}, got {value!r}")
 
 
+def _numbers(values: list[float], n: int) -> bool:
+    vals = tuple(values)
+    return len(vals) == n and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in vals)
+
+
 def _colour_camera(values: list[float]) -> tuple[float, float, float, float]:
     """dataset.colour_camera as (fx, fy, cx, cy), or a one-line DatasetError."""
-    vals = tuple(values)
-    ok = len(vals) == 4 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in vals)
-    if not ok or vals[0] <= 0 or vals[1] <= 0:
+    if not _numbers(values, 4) or values[0] <= 0 or values[1] <= 0:
         raise DatasetError("dataset.colour_camera", f"must be [fx, fy, cx, cy] with fx, fy > 0, got {list(values)!r}")
-    return tuple(float(v) for v in vals)
+    return tuple(float(v) for v in values)
+
+
+def _colour_offset(values: list[float]) -> tuple[float, float]:
+    """dataset.colour_offset as (x, y) metres, or a one-line DatasetError."""
+    if not _numbers(values, 2) or max(abs(v) for v in values) > 1.0:
+        raise DatasetError("dataset.colour_offset", f"must be [x, y] in metres (|x|, |y| <= 1), got {list(values)!r}")
+    return tuple(float(v) for v in values)
 
 
 class TUMSequence(SequenceDataset):
@@ -136,6 +148,7 @@ class TUMSequence(SequenceDataset):
         gt_file: ground-truth file name relative to root (``groundtruth.txt``), if present.
         name: sequence name (default: the root folder's name).
         colour_camera: [fx, fy, cx, cy] of unregistered colour's camera (module docstring); None = registered.
+        colour_offset: [x, y] metres, that camera's centre in the depth camera's frame (needs colour_camera).
     """
 
     default_camera = "fr3"
@@ -158,6 +171,7 @@ class TUMSequence(SequenceDataset):
         gt_file: str = "groundtruth.txt",
         name: str | None = None,
         colour_camera: list[float] | None = None,
+        colour_offset: list[float] | None = None,
     ) -> None:
         self.root = require_dir(root, f"{type(self).__name__} sequence folder")
         self.name = name or self.root.name
@@ -206,6 +220,9 @@ class TUMSequence(SequenceDataset):
         self.colour_camera = None if colour_camera is None else _colour_camera(colour_camera)
         dist = self.distortion if undistort else None  # colour: its own camera, resampled onto the depth pixels
         self._colour_maps = self._maps if self.colour_camera is None else colour_maps(self.intrinsics, self.colour_camera, dist)
+        if colour_offset is not None and self.colour_camera is None:
+            raise DatasetError("dataset.colour_offset", "needs dataset.colour_camera (the offset is that camera's)")
+        self.colour_offset = None if colour_offset is None else _colour_offset(colour_offset)
 
         # ground truth
         self.gt_path = self.root / gt_file
@@ -236,8 +253,11 @@ class TUMSequence(SequenceDataset):
         depth = read_depth_png(self.depth_paths[i], self.depth_scale)
         check_same_size(rgb, depth, self.rgb_paths[i], self.depth_paths[i])
         check_size(rgb, self.intrinsics, self.rgb_paths[i], "colour image")
-        rgb = np.clip(self._remap(rgb, False, self._colour_maps), 0.0, 1.0)
         depth = self._remap(depth, True, self._maps)
+        maps = self._colour_maps
+        if self.colour_offset is not None:
+            maps = with_parallax(maps, depth, self.colour_camera, self.colour_offset)
+        rgb = np.clip(self._remap(rgb, False, maps), 0.0, 1.0)
         pose = self.gt_poses[i]
         frame = Frame(
             index=i,
@@ -255,6 +275,8 @@ class TUMSequence(SequenceDataset):
         d.update(gt_valid_frames=int(self.gt_valid.sum()), camera=self.camera, undistort=self.undistort, dropped_rgb=self.dropped_rgb)
         if self.colour_camera is not None:
             d.update(colour_camera=list(self.colour_camera))
+        if self.colour_offset is not None:
+            d.update(colour_offset=list(self.colour_offset))
         return d
 
 

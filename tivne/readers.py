@@ -83,12 +83,15 @@ class TUMReader(Settings):
     gt_max_gap: float | None = setting(0.1, ge=0)
     gt_file: str = "groundtruth.txt"
     colour_camera: tuple[float, ...] | None = None
+    colour_offset: tuple[float, ...] | None = None
 
     def check(self) -> None:
         if self.distortion is not None and len(self.distortion) != 5:
             raise ConfigError(f"dataset.distortion={list(self.distortion)}: must be [k1, k2, p1, p2, k3]")
         if self.colour_camera is not None and (len(self.colour_camera) != 4 or min(self.colour_camera[:2]) <= 0):
             raise ConfigError(f"dataset.colour_camera={list(self.colour_camera)}: must be [fx, fy, cx, cy] of the colour camera, fx and fy > 0")
+        if self.colour_offset is not None and (len(self.colour_offset) != 2 or self.colour_camera is None):
+            raise ConfigError(f"dataset.colour_offset={list(self.colour_offset)}: must be [x, y] metres, with dataset.colour_camera set")
 
 
 @dataclass(frozen=True)

@@ -56,3 +56,25 @@ def test_the_tum_reader_resamples_colour_onto_the_depth_pixels(tmp_path):
     assert reg.describe()["colour_camera"] == Kc
     with pytest.raises(DatasetError, match=r"dataset.colour_camera: must be \[fx, fy, cx, cy\]"):
         TUMSequence(tmp_path / "s", camera="ros", colour_camera=[500.0, 0.0, 320.0, 240.0])
+
+
+def test_the_tum_reader_takes_each_pixels_colour_at_its_own_parallax(tmp_path):
+    make_tum(tmp_path / "s", n=2)
+    plain = TUMSequence(tmp_path / "s", camera="ros")
+    K = plain.intrinsics.K(dtype=torch.float64).numpy()
+    Kc = [K[0, 0], K[1, 1], K[0, 2], K[1, 2]]
+    reg = TUMSequence(tmp_path / "s", camera="ros", colour_camera=Kc, colour_offset=[0.03, -0.01])
+    depth = plain[0].depth.numpy()
+    assert (depth > 0).any()
+    u, v = np.meshgrid(np.arange(depth.shape[1], dtype=np.float32), np.arange(depth.shape[0], dtype=np.float32))
+    z = np.where(depth > 0, depth, np.median(depth[depth > 0]))
+    mx, my = u - K[0, 0] * 0.03 / z, v + K[1, 1] * 0.01 / z
+    expect = cv2.remap(plain[0].rgb.numpy(), mx.astype(np.float32), my.astype(np.float32), cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    np.testing.assert_allclose(reg[0].rgb.numpy(), expect, atol=1e-3)  # the maps' float rounding
+    assert np.abs(reg[0].rgb.numpy() - plain[0].rgb.numpy()).max() > 0.1  # the parallax moved the colour
+    assert reg.describe()["colour_offset"] == [0.03, -0.01]
+    with pytest.raises(DatasetError, match="dataset.colour_offset: needs dataset.colour_camera"):
+        TUMSequence(tmp_path / "s", camera="ros", colour_offset=[0.03, 0.0])
+    with pytest.raises(DatasetError, match=r"dataset.colour_offset: must be \[x, y\]"):
+        TUMSequence(tmp_path / "s", camera="ros", colour_camera=Kc, colour_offset=[0.03])
