@@ -137,7 +137,7 @@ class SlamLoop:
             observed = None if ahead is None else ahead.objects
             view, keyframe, new_reference, mapping, correction, objects = self._integrate(k, view, frame, result, next_frame, observed)
         if len(self.trajectory) == k:  # not yet recorded before its mapping round (see _integrate)
-            self._record(frame, view)
+            self._record(frame, view, result.lost)
         if not result.lost:
             self.last_view = None if keyframe else view
         elapsed = time.perf_counter() - start
@@ -152,9 +152,11 @@ class SlamLoop:
         mask = self.masks.predict(frame) if self.masks.needs_tracked_pose else self.masks(frame, None)
         return mask, self.tracker.track(k, frame, tau, mask, self.field, self.poses, self.K, self.last_mapped_tau, self.generator)
 
-    def _record(self, frame: Frame, view: View) -> None:
+    def _record(self, frame: Frame, view: View, lost: bool = False) -> None:
         latest = self.keyframes.frame_ids()[-1]
-        self.trajectory.append(frame.timestamp, view.pose, latest, self.keyframes.pose(latest), frame.gt_pose)
+        self.trajectory.append(frame.timestamp, view.pose, latest, self.keyframes.pose(latest), frame.gt_pose, lost)
+        if not lost:
+            self.trajectory.bridge_lost(self.keyframes.pose_map())
 
     @property
     def overlaps(self) -> bool:

@@ -6,8 +6,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
+from data_modules.poses import interpolate_poses
 from tivne.geometry import invert_pose, orthonormalize_pose
 from tivne.metrics.trajectory import ATEResult, absolute_trajectory_error
 
@@ -16,12 +18,14 @@ from tivne.metrics.trajectory import ATEResult, absolute_trajectory_error
 class FrameRecord:
     """Where a processed frame's pose lives: relative to the keyframe with frame id ``keyframe``
     ((4, 4) ``relative``), or absolute (``keyframe`` None) once that keyframe's pose is final;
-    ``gt_pose`` (4, 4) c2w or None."""
+    ``gt_pose`` (4, 4) c2w or None; ``lost``: tracking failed, the pose is the motion model's guess
+    until :meth:`Trajectory.bridge_lost` interpolates it."""
 
     timestamp: float
     keyframe: int | None
     relative: torch.Tensor
     gt_pose: torch.Tensor | None
+    lost: bool = False
 
 
 class Trajectory:
@@ -33,11 +37,38 @@ class Trajectory:
     def __len__(self) -> int:
         return len(self.records)
 
-    def append(self, timestamp: float, pose: torch.Tensor, keyframe: int, keyframe_pose: torch.Tensor, gt_pose: torch.Tensor | None) -> None:
+    def append(
+        self, timestamp: float, pose: torch.Tensor, keyframe: int, keyframe_pose: torch.Tensor, gt_pose: torch.Tensor | None, lost: bool = False
+    ) -> None:
         """Record a frame's (4, 4) c2w ``pose`` relative to the keyframe with frame id ``keyframe``
-        (at ``keyframe_pose``)."""
+        (at ``keyframe_pose``); ``lost``: the pose is a guess (tracking failed)."""
         rel = orthonormalize_pose(invert_pose(keyframe_pose) @ pose)
-        self.records.append(FrameRecord(float(timestamp), int(keyframe), rel.detach(), gt_pose))
+        self.records.append(FrameRecord(float(timestamp), int(keyframe), rel.detach(), gt_pose, bool(lost)))
+
+    def bridge_lost(self, keyframe_poses: dict[int, torch.Tensor]) -> int:
+        """When the last frame is tracked and the frames just before it were lost: their poses become
+        the interpolation in time (SLERP + linear) between the last tracked frame before them and this
+        one, in place of the motion model's guess made when they came (which a turn or a jolt, the
+        usual reason a frame is lost, makes wrong). Returns how many were bridged; none when no tracked
+        frame precedes them."""
+        last = len(self.records) - 1
+        if last < 1 or self.records[last].lost or not self.records[last - 1].lost:
+            return 0
+        before = last - 1
+        while before >= 0 and self.records[before].lost:
+            before -= 1
+        if before < 0:
+            return 0
+        ends = torch.stack([self.pose(before, keyframe_poses), self.pose(last, keyframe_poses)])
+        gap = range(before + 1, last)
+        times = np.array([self.records[before].timestamp, self.records[last].timestamp])
+        bridged, _ = interpolate_poses(times, ends, np.array([self.records[i].timestamp for i in gap]))
+        for i, pose in zip(gap, bridged):
+            r = self.records[i]
+            base = torch.eye(4, dtype=torch.float64) if r.keyframe is None else keyframe_poses[r.keyframe].detach().cpu().double()
+            r.relative = orthonormalize_pose(invert_pose(base) @ pose).to(r.relative)
+            r.lost = False  # bridged: no longer the guess (the tracker's counters keep that it was lost)
+        return len(gap)
 
     def freeze(self, keyframe: int, keyframe_pose: torch.Tensor) -> None:
         """The keyframe with frame id ``keyframe`` will not move any more (it left the keyframe
@@ -76,14 +107,16 @@ class Trajectory:
             "dtypes": [str(r.relative.dtype).removeprefix("torch.") for r in records],
             "gt": stack64([torch.zeros(4, 4) if r.gt_pose is None else r.gt_pose for r in records]),
             "gt_dtypes": [None if r.gt_pose is None else str(r.gt_pose.dtype).removeprefix("torch.") for r in records],
+            "lost": [r.lost for r in records],
         }
 
     def load_state_dict(self, state: dict) -> None:
         """Records as saved (float32 -> float64 -> float32 is exact, so poses come back bit for bit)."""
+        lost = state.get("lost") or [False] * len(state["timestamps"])  # checkpoints before it: none pending
         self.records = [
-            FrameRecord(float(t), None if kf < 0 else int(kf), rel.to(getattr(torch, dt)), None if gdt is None else gt.to(getattr(torch, gdt)))
-            for t, kf, rel, dt, gt, gdt in zip(
-                state["timestamps"], state["keyframes"], state["relative"], state["dtypes"], state["gt"], state["gt_dtypes"]
+            FrameRecord(float(t), None if kf < 0 else int(kf), rel.to(getattr(torch, dt)), None if gdt is None else gt.to(getattr(torch, gdt)), bool(ls))
+            for t, kf, rel, dt, gt, gdt, ls in zip(
+                state["timestamps"], state["keyframes"], state["relative"], state["dtypes"], state["gt"], state["gt_dtypes"], lost
             )
         ]
 

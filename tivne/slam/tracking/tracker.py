@@ -163,7 +163,7 @@ class Tracker:
         self.counts.recovered += int(result.status is TrackStatus.RECOVERED)
         if result.status is TrackStatus.LOST:
             self.counts.lost += 1
-            self.warn(f"frame {index} (t={float(frame.timestamp):.3f}s): tracking lost ({result.describe()}); pose from the motion model, not mapped")
+            self.warn(f"frame {index} (t={float(frame.timestamp):.3f}s): tracking lost ({result.describe()}); pose from the motion model until the next tracked frame bridges it, not mapped")
         return result
 
     def _track(
