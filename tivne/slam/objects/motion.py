@@ -68,3 +68,16 @@ def centred_information(sigma_t: float, sigma_r: float, centre: torch.Tensor) ->
     M[:3, 3:] = -skew(centre.double())
     lam = torch.diag(torch.tensor([1.0 / sigma_t**2] * 3 + [1.0 / sigma_r**2] * 3, dtype=torch.float64))
     return M.T @ lam @ M
+
+
+def within_motion_gate(T_wo: torch.Tensor, T_pred: torch.Tensor, dt: float, accel: float, angular_accel: float, sigmas: float) -> bool:
+    """Whether an object pose T_wo (4, 4) is within ``sigmas`` σ of its constant-velocity prediction
+    T_pred (4, 4), with the motion prior's σ over ``dt`` seconds (σ_t = ½ a Δt² metres at the object's
+    origin, σ_r = ½ α Δt² radians; ``accel`` a m/s², ``angular_accel`` α rad/s²), translation and
+    rotation apart. No gate (True) without a prior (a or α <= 0) or without a time step."""
+    if accel <= 0 or angular_accel <= 0 or dt <= 0:
+        return True
+    D = invert_pose(T_pred.double()) @ T_wo.double()
+    angle = float(torch.arccos(((torch.trace(D[:3, :3]) - 1.0) / 2.0).clamp(-1.0, 1.0)))
+    moved = float((T_wo[:3, 3].double() - T_pred[:3, 3].double()).norm())
+    return moved <= sigmas * 0.5 * accel * dt * dt and angle <= sigmas * 0.5 * angular_accel * dt * dt

@@ -5,7 +5,8 @@ dense odometry (:func:`tivne.slam.tracking.odometry.track_pyramids`, photometric
 coarse to fine) on that object's pixels only, against the object's own keyframe observations,
 turned into an object-to-world pose (:mod:`tivne.slam.objects.motion` derives it). The track's
 velocity predicts the pose and, as a prior of ``objects.accel_sigma`` / ``angular_accel_sigma``,
-holds what the pixels leave open (a symmetric object's spin, a blurred view). An object seen again
+holds what the pixels leave open (a symmetric object's spin, a blurred view); a pose more than
+``MOTION_GATE_SIGMAS`` of that prior's σ from the prediction is refused, as the camera's max_jump. An object seen again
 after more than ``max_gap_s`` starts from its last pose moved so that its last observed points'
 centre lands on the new observation's, turned by the best of several rotation hypotheses
 (:mod:`tivne.slam.objects.reacquire`). Objects cut off by the image border, and objects coming back
@@ -41,7 +42,7 @@ from tivne.slam.objects.instances import (
     touches_border,
     world_points,
 )
-from tivne.slam.objects.motion import camera_in_object, centred_information, object_pose, odometry_init
+from tivne.slam.objects.motion import camera_in_object, centred_information, object_pose, odometry_init, within_motion_gate
 from tivne.slam.objects.reacquire import reacquire
 from tivne.slam.objects.references import (
     REUSE_ANGLE_DEG,
@@ -68,6 +69,7 @@ MAX_REFERENCES = 32
 JOINT_VIEWS = 5
 # Alignments whose photometric RMS makes an object's typical residual (re-acquisition's yardstick).
 RMS_HISTORY = 20
+MOTION_GATE_SIGMAS = 10.0  # a pose further from the prediction (σ of the motion prior) is refused
 
 
 @dataclass(frozen=True)
@@ -172,8 +174,7 @@ class ObjectTracker:
 
     def metrics(self) -> dict[str, Any]:
         """metrics.json keys of the tracking itself: tracks written, the objects' s/frame."""
-        return {"objects_written": len(self.written_tracks()),
-                "objects_s_per_frame": self.seconds / self.frames if self.frames else None}
+        return {"objects_written": len(self.written_tracks()), "objects_s_per_frame": self.seconds / self.frames if self.frames else None}
 
     def step(self, frame: Frame, camera_pose: torch.Tensor, tau: float, instances: torch.Tensor | None) -> list[ObjectObservation]:
         """Observe the objects of one frame whose camera-to-world pose ``camera_pose`` (4, 4) is known.
@@ -233,7 +234,10 @@ class ObjectTracker:
             prior = self._prior(init, ref.C, t - live.last_time) if self._steady(oid) else None
             also = tuple((o.pyramid, invert_pose(o.C) @ ref.C) for o in companions(live.references, ref, C_pred, 2 * REUSE_ANGLE_DEG, JOINT_VIEWS - 1))
             res = track_pyramids(ref.pyramid, pyramid, init, self.odo, prior=prior, also=also)
-        if not self._good(res):
+        T_wo = object_pose(T_wc, res.T_ref_cur, ref.C)
+        jolt = not back and self._steady(oid) and not within_motion_gate(  # a lock onto smeared or repeated texture
+            T_wo, T_pred, t - live.last_time, self.cfg.accel_sigma, self.cfg.angular_accel_sigma, MOTION_GATE_SIGMAS)
+        if not self._good(res) or jolt:
             if back and len(self.pending.get(oid, [])) < self.cfg.border_wait:  # no anchor from one poor view: try the next
                 self.pending.setdefault(oid, []).append(_Pending(pyramid, mask, T_wc, tau, t, pixels))
                 return None
@@ -242,7 +246,6 @@ class ObjectTracker:
                 self._new_reference(oid, inner, pyramid, depth, T_wc, T_pred, tau, t)
             return ObjectObservation(oid, tau, t, T_pred, pixels, False, reidentified=reid,
                                      overlap=res.overlap, inlier_ratio=res.inlier_ratio)
-        T_wo = object_pose(T_wc, res.T_ref_cur, ref.C)
         track.add(tau, T_wo)
         self.stamps[oid][tau] = t
         if back:
@@ -256,7 +259,6 @@ class ObjectTracker:
             self.live[oid].rms = (self.live[oid].rms + [res.rms_photometric])[-RMS_HISTORY:]
         return ObjectObservation(oid, tau, t, T_wo, pixels, True, reidentified=reid, new_reference=new_ref,
                                  overlap=res.overlap, inlier_ratio=res.inlier_ratio)
-
 
     def _prior(self, init: torch.Tensor, C_ref: torch.Tensor, dt: float) -> PosePrior | None:
         """The motion prior (``objects.accel_sigma``, ``angular_accel_sigma``) on the odometry's
@@ -310,8 +312,7 @@ class ObjectTracker:
 
     def _drop_stale_pending(self, t: float) -> None:
         """Forget waiting observations of objects not seen for longer than ``max_gap_s``."""
-        for oid in [k for k, w in self.pending.items() if w and t - w[-1].time > self.cfg.max_gap_s]:
-            del self.pending[oid]
+        self.pending = {k: w for k, w in self.pending.items() if not (w and t - w[-1].time > self.cfg.max_gap_s)}
 
     def _new_reference(self, oid, mask, pyramid, depth, T_wc, T_wo, tau, t) -> None:
         """Restart the object's tracking from this view at pose T_wo (a prediction): the pose is

@@ -9,7 +9,7 @@ import torch
 
 from tivne.geometry import invert_pose, se3_exp
 from tivne.slam.objects import ObjectTrack
-from tivne.slam.objects.motion import camera_in_object, interpolate_se3, object_pose, odometry_init
+from tivne.slam.objects.motion import camera_in_object, interpolate_se3, object_pose, odometry_init, within_motion_gate
 
 
 def _pose(*xi) -> torch.Tensor:
@@ -115,3 +115,17 @@ def test_object_pose_inverts_the_object_frame_odometry():
     torch.testing.assert_close(odometry_init(T_wo_k, T_wc_k, C_r), T_ref_cur)
     # A static object: the odometry sees the camera's own motion.
     torch.testing.assert_close(odometry_init(T_wo_r, T_wc_k, C_r), invert_pose(T_wc_r) @ T_wc_k)
+
+
+def test_the_motion_gate_scales_with_the_priors_sigma_over_the_time_step():
+    pred = torch.eye(4, dtype=torch.float64)
+    moved = pred.clone()
+    moved[0, 3] = 0.02  # 2 cm; σ_t = ½ · 4 m/s² · (1/30 s)² = 2.2 mm
+    assert within_motion_gate(moved, pred, 1 / 30, 4.0, 30.0, 10.0)
+    assert not within_motion_gate(moved, pred, 1 / 30, 4.0, 30.0, 5.0)
+    assert within_motion_gate(moved, pred, 0.1, 4.0, 30.0, 5.0)  # a longer step: σ_t 2 cm
+    turned = pred.clone()
+    a = math.radians(12.0)  # σ_r = ½ · 30 rad/s² · (1/30 s)² = 0.95°
+    turned[:2, :2] = torch.tensor([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]], dtype=torch.float64)
+    assert not within_motion_gate(turned, pred, 1 / 30, 4.0, 30.0, 10.0)
+    assert within_motion_gate(turned, pred, 1 / 30, 0.0, 30.0, 10.0)  # no prior, no gate

@@ -208,3 +208,27 @@ def test_an_object_last_seen_as_a_sliver_is_taken_up_again_where_it_is(crossing)
         placed = seen[i].pose @ torch.linalg.inv(track.poses()[0]) @ first
         gt = _gt(crossing, "far", [seen[i].tau])[0]
         assert float((placed[:3, 3] - gt[:3, 3]).norm()) < 0.015, i
+
+
+def _turned_about_y(degrees: float) -> torch.Tensor:
+    a = np.radians(degrees)
+    T = torch.eye(4, dtype=torch.float64)
+    T[0, 0], T[0, 2], T[2, 0], T[2, 2] = np.cos(a), np.sin(a), -np.sin(a), np.cos(a)
+    return T
+
+
+@pytest.mark.parametrize("accel_sigma, taken", [(4.0, False), (0.0, True)])
+def test_a_pose_far_beyond_the_motion_priors_reach_is_not_taken(cube, accel_sigma, taken):
+    """Three views give the cube a velocity; the fourth comes with a camera pose turned 4° about its
+    centre, so the object's aligned pose jumps by 4° and ~10 cm in one frame (the prior's σ: ~1°,
+    2 mm): with the motion prior it is refused like a lost frame, without one (accel_sigma 0) it is
+    taken as it comes."""
+    tracker = ObjectTracker(ObjectsConfig(track=True, accel_sigma=accel_sigma), cube.intrinsics.K(), names={1: "cube"})
+    for i in range(3):
+        f = cube.render(i, noise=False)
+        (obs,) = tracker.step(f, cube.camera_pose(i), float(f.timestamp), f.instances)
+        assert obs.ok
+    f = cube.render(3, noise=False)
+    (obs,) = tracker.step(f, cube.camera_pose(3).double() @ _turned_about_y(4.0), float(f.timestamp), f.instances)
+    assert obs.ok == taken and len(tracker.tracks[1].poses()) == 3 + int(taken)
+    assert obs.inlier_ratio > 0.5 and obs.overlap > 0.5  # the alignment itself held: the gate refused it
