@@ -302,19 +302,6 @@ class BonnSequence(TUMSequence):
         super().__init__(root, **kwargs)
         log.info("%s: Bonn marker-to-camera correction %s", self.root, "applied" if self.marker_to_camera else "NOT applied")
 
-    def _set_up_remapping(self, undistort: bool, colour_camera: list[float] | None, colour_offset: list[float] | None) -> None:
-        """The undistortion maps (depth, masks; colour when registered) and unregistered colour's own
-        camera maps and offset (module docstring)."""
-        own = (self.intrinsics.fx, self.intrinsics.fy, self.intrinsics.cx, self.intrinsics.cy)  # undistorted onto the same K
-        self._maps = colour_maps(self.intrinsics, own, self.distortion) if undistort and np.any(self.distortion != 0) else None
-        self.undistort = self._maps is not None
-        self.colour_camera = None if colour_camera is None else _colour_camera(colour_camera)
-        dist = self.distortion if undistort else None  # colour: its own camera, resampled onto the depth pixels
-        self._colour_maps = self._maps if self.colour_camera is None else colour_maps(self.intrinsics, self.colour_camera, dist)
-        if colour_offset is not None and self.colour_camera is None:
-            raise DatasetError("dataset.colour_offset", "needs dataset.colour_camera (the offset is that camera's)")
-        self.colour_offset = None if colour_offset is None else _colour_offset(colour_offset)
-
     def convert_gt(self, poses: torch.Tensor) -> torch.Tensor:
         return bonn_marker_to_camera(poses) if self.marker_to_camera else poses
 
