@@ -183,15 +183,11 @@ def _carried(times: np.ndarray, poses: torch.Tensor, end: int, inner: int, t: fl
 
 def _baseline_partner(times: np.ndarray, end: int, baseline: float, direction: int) -> int:
     """The sample about ``baseline`` seconds from sample ``end`` towards ``direction`` (-1 earlier,
-    +1 later), at least one sample away (clipped to the array): the first at or beyond ``baseline``,
-    or, when that one lies more than 2·baseline away (the samples there broke off), the last one short
-    of it, so a short run of samples next to a gap still measures its own velocity."""
+    +1 later), at least one sample away (clipped to the array)."""
     n = len(times)
     if direction < 0:
-        i = int(np.clip(np.searchsorted(times, times[end] - baseline, side="right") - 1, 0, end - 1))
-        return i + 1 if times[end] - times[i] > 2 * baseline and i + 1 < end else i
-    i = int(np.clip(np.searchsorted(times, times[end] + baseline, side="left"), end + 1, n - 1))
-    return i - 1 if times[i] - times[end] > 2 * baseline and i - 1 > end else i
+        return int(np.clip(np.searchsorted(times, times[end] - baseline, side="right") - 1, 0, end - 1))
+    return int(np.clip(np.searchsorted(times, times[end] + baseline, side="left"), end + 1, n - 1))
 
 
 def pose_on_track(times: np.ndarray, poses: torch.Tensor, t: float, baseline: float = 0.1, pivot: torch.Tensor | None = None) -> torch.Tensor:

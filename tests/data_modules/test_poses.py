@@ -214,19 +214,3 @@ def test_pose_on_track_turns_about_the_pivot_it_is_given_and_the_long_way_across
     assert float((P.pose_on_track(times, poses, 0.9)[:3, 3] - turning(0.9)[:3, 3]).norm()) > 0.01  # about the origin
     short_way = P.pose_on_track(times, poses, 0.9, baseline=2.0, pivot=off)  # SLERP alone across the gap
     assert float(P.rotation_vector(short_way[:3, :3] @ turning(0.9)[:3, :3].T).norm()) > 1.0
-
-
-def test_a_short_run_of_samples_between_two_gaps_carries_its_own_velocity_into_them():
-    # A box spinning at 3 rad/s about its own axis is seen for two frames (0.033 s) between two long
-    # gaps. Its velocity at that run's end comes from the run itself, not from a sample past the next
-    # gap (which would leave the gap to SLERP: the short way round, > 1 rad off).
-    def spinning(t: float) -> torch.Tensor:
-        T = torch.eye(4, dtype=torch.float64)
-        T[:3, :3] = P.rotation_from_vector(torch.tensor([0.0, 3.0 * t, 0.0], dtype=torch.float64))
-        T[:3, 3] = torch.tensor([0.5 - 0.4 * t, 0.2, 1.0], dtype=torch.float64)
-        return T
-
-    times = np.concatenate([np.arange(0.0, 0.2, 1 / 30), [1.7, 1.7 + 1 / 30], np.arange(3.5, 3.7, 1 / 30)])
-    poses = torch.stack([spinning(float(t)) for t in times])
-    for t in (0.6, 1.2, 2.0, 3.0):
-        torch.testing.assert_close(P.pose_on_track(times, poses, t), spinning(t), atol=1e-9, rtol=0)
