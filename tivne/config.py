@@ -108,10 +108,10 @@ class TrackingConfig(Settings):
     ratio with the reference falls below reference_min_overlap / reference_min_inliers, which also
     apply to the other two). motion_model: the initial pose, 'zero' (paper) or 'constant_velocity'
     (from the trajectory's last two poses). min_static_pixels: a frame with fewer static pixels with
-    depth is not tracked (nothing to track on) and not mapped. Tracking loss: the odometry fails (and its wider-basin
-    retry too), the field tracker alone keeps less than ``field_tracking.min_inlier_ratio`` of its rays, or the pose lands more than max_jump_m /
-    max_jump_deg from the prediction; a lost frame is reported, never mapped, and its pose is bridged
-    between the tracked frames around it once the next is tracked (``Trajectory.bridge_lost``).
+    depth is not tracked and not mapped. Lost: the odometry and its wider-basin retry fail, the field tracker
+    alone keeps < ``field_tracking.min_inlier_ratio`` of its rays, or the pose lands > max_jump_m / max_jump_deg
+    from the prediction; a lost frame is reported, never mapped, and bridged between the tracked frames around
+    it once the next one is tracked (``Trajectory.bridge_lost``).
     overlap: track the next frame in a worker thread (overlap_threads OpenMP threads of its own)
     while the current one is mapped, where the order changes nothing (method 'odometry', which does
     not read the map, and ``mapping.optimize_poses`` off): the same poses and map in less wall time

@@ -4,10 +4,10 @@ Per frame: the object instances (:mod:`tivne.slam.objects.instances`), then for 
 dense odometry (:func:`tivne.slam.tracking.odometry.track_pyramids`, photometric + point-to-plane, robust,
 coarse to fine) on that object's pixels only, against the object's own keyframe observations,
 turned into an object-to-world pose (:mod:`tivne.slam.objects.motion` derives it). The track's
-velocity predicts the pose and, as a prior of ``objects.accel_sigma`` / ``angular_accel_sigma``,
-holds what the pixels leave open (a symmetric object's spin, a blurred view); a pose more than
-``MOTION_GATE_SIGMAS`` of that prior's σ from the prediction is refused, as the camera's max_jump. An object seen again
-after more than ``max_gap_s`` starts from its last pose moved so that its last observed points'
+velocity predicts the pose and, as a prior of ``objects.accel_sigma`` / ``angular_accel_sigma``, holds
+what the pixels leave open (a symmetric object's spin, a blurred view); a pose more than
+``MOTION_GATE_SIGMAS`` σ of that prior from the prediction is refused. An object seen again after
+more than ``max_gap_s`` starts from its last pose moved so that its last observed points'
 centre lands on the new observation's, turned by the best of several rotation hypotheses
 (:mod:`tivne.slam.objects.reacquire`). Objects cut off by the image border, and objects coming back
 while partly hidden, wait for a whole view; a reference is renewed when its overlap or inlier ratio
