@@ -59,14 +59,13 @@ class Trajectory:
             before -= 1
         if before < 0:
             return 0
-        ends = torch.stack([self.pose(before, keyframe_poses), self.pose(last, keyframe_poses)])
+        ends = torch.stack([self.pose(before, keyframe_poses), self.pose(last, keyframe_poses)]).cpu()  # interpolate_poses: CPU
         gap = range(before + 1, last)
         times = np.array([self.records[before].timestamp, self.records[last].timestamp])
         bridged, _ = interpolate_poses(times, ends, np.array([self.records[i].timestamp for i in gap]))
         for i, pose in zip(gap, bridged):
             r = self.records[i]
-            base = torch.eye(4, dtype=torch.float64) if r.keyframe is None else keyframe_poses[r.keyframe].detach().cpu().double()
-            r.relative = orthonormalize_pose(invert_pose(base) @ pose).to(r.relative)
+            r.relative = orthonormalize_pose(invert_pose(self._base(r, keyframe_poses).cpu()) @ pose).to(r.relative)
             r.lost = False  # bridged: no longer the guess (the tracker's counters keep that it was lost)
         return len(gap)
 
@@ -89,8 +88,14 @@ class Trajectory:
     def pose(self, index: int, keyframe_poses: dict[int, torch.Tensor]) -> torch.Tensor:
         """(4, 4) float64 c2w pose of the ``index``-th processed frame (negative: from the end)."""
         r = self.records[index]
-        rel = r.relative.double()
-        return rel if r.keyframe is None else keyframe_poses[r.keyframe].double() @ rel
+        return self._base(r, keyframe_poses) @ r.relative.double()
+
+    @staticmethod
+    def _base(record: FrameRecord, keyframe_poses: dict[int, torch.Tensor]) -> torch.Tensor:
+        """(4, 4) float64 pose the record's ``relative`` is relative to: its keyframe's, or identity (absolute)."""
+        if record.keyframe is None:
+            return torch.eye(4, dtype=torch.float64, device=record.relative.device)
+        return keyframe_poses[record.keyframe].double()
 
     def timestamps(self) -> list[float]:
         return [r.timestamp for r in self.records]

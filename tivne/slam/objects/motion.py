@@ -21,9 +21,11 @@ A static object (T_wo_k = T_wo_r) gives T_ref_cur = T_wc_r⁻¹ T_wc_k, the came
 
 from __future__ import annotations
 
+import math
+
 import torch
 
-from tivne.geometry import invert_pose, orthonormalize_pose, se3_exp, se3_log, skew
+from tivne.geometry import invert_pose, orthonormalize_pose, pose_difference, se3_exp, se3_log, skew
 
 
 def camera_in_object(T_wo: torch.Tensor, T_wc: torch.Tensor) -> torch.Tensor:
@@ -77,7 +79,5 @@ def within_motion_gate(T_wo: torch.Tensor, T_pred: torch.Tensor, dt: float, acce
     rotation apart. No gate (True) without a prior (a or α <= 0) or without a time step."""
     if accel <= 0 or angular_accel <= 0 or dt <= 0:
         return True
-    D = invert_pose(T_pred.double()) @ T_wo.double()
-    angle = float(torch.arccos(((torch.trace(D[:3, :3]) - 1.0) / 2.0).clamp(-1.0, 1.0)))
-    moved = float((T_wo[:3, 3].double() - T_pred[:3, 3].double()).norm())
-    return moved <= sigmas * 0.5 * accel * dt * dt and angle <= sigmas * 0.5 * angular_accel * dt * dt
+    moved, degrees = pose_difference(T_pred, T_wo)  # |T_pred⁻¹ T_wo|: the origin's shift, the turn
+    return moved <= sigmas * 0.5 * accel * dt * dt and math.radians(degrees) <= sigmas * 0.5 * angular_accel * dt * dt
