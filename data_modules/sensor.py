@@ -15,6 +15,8 @@ Depth = TypeVar("Depth", torch.Tensor, np.ndarray, float)
 
 # (a, b, z0) of σ(z) = a + b (z − z0)², metres: Kinect v1 (Nguyen, Izadi and Lovell 2012).
 KINECT_SIGMA: tuple[float, float, float] = (0.0012, 0.0019, 0.4)
+# The Kinect's colour camera sits ~2.5 cm beside its IR (depth) camera (Khoshelham & Elberink, Sensors 2012).
+KINECT_COLOUR_BASELINE_M = 0.025
 
 
 def kinect_depth_sigma(z: Depth, coeffs: tuple[float, float, float] = KINECT_SIGMA) -> Depth:

@@ -178,30 +178,27 @@ class FieldTrackingConfig(Settings):
 class OdometryConfig(Settings):
     """Dense RGB-D odometry (:func:`tivne.slam.tracking.odometry.track_pyramids`; ``tracking.method=odometry``) (noise-model based defaults, not tuned to one sequence).
 
-    levels: pyramid levels (1 = full resolution only). max_iterations: Gauss–Newton iterations per
-    level. photometric / geometric: which residual terms enter. robust: "huber" (k 1.345) or
-    "cauchy" (k 2.3849) kernel on the normalised residuals. depth_sigma: (a, b, z0) of σ(z).
-    intensity_sigma_min: floor of the photometric scale (1/255, one 8-bit step). brightness_offset:
-    subtract the median photometric residual (a global exposure change). photometric_depth_noise: add
-    the current depth's noise, seen through the image gradient, to each photometric σ.
-    photometric_weight: an extra factor on the photometric information (1 = the noise scales alone
-    decide). geometric_scale: "data" (σ(z) shapes the per-pixel point-to-plane weights, the MAD of the
-    residuals sets the overall scale, at least depth_quantum metres, as for the photometric term) or
-    "model" (scale ≥ σ(z)). outlier_sigmas: a pair whose depth difference exceeds this many robust σ is
-    rejected (occlusion, another surface).
-    max_normal_angle_deg: reject point-to-plane pairs whose normals disagree more. min_depth, max_depth:
-    usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than
-    this many of its pixels (|w|·f + |v|·f/z̄, z̄ the median depth); stall_pixels: or by less than this
-    without shrinking. damping: Levenberg–Marquardt λ relative to diag(H). max_points: at most about
-    this many current pixels at the finest level (every k-th pixel on both axes; 0 = all): past a few ten
-    thousand the estimate is limited by systematic errors, not by the count. coarse_points_ratio: each
-    coarser level takes this many times fewer (level l: max_points / ratio^l; 1 = the same cap at
-    every level). 2 cut the odometry's time by 10-22 % on both real tails at the same ATE, but the
-    coarse levels carry large motions: with a camera whipping 70-90° (fast_turn) camera ATE went
-    1.24 -> 1.58 cm and an object track was lost, so the default stays 1. inlier_sigmas: a usable pair is an inlier when
-    its depth difference is within this many σ_pair of the sensor model (absolute, so it measures the
-    alignment, not the adaptive scale). min_correspondences, min_overlap, min_inlier_ratio,
-    max_pose_std: thresholds of :attr:`OdometryResult.ok`.
+    levels: pyramid levels (1 = full resolution only). max_iterations: Gauss–Newton iterations per level. photometric / geometric: which
+    residual terms enter. robust: "huber" (k 1.345) or "cauchy" (k 2.3849) kernel on the normalised residuals. depth_sigma: (a, b, z0)
+    of σ(z). intensity_sigma_min: floor of the photometric scale (1/255, one 8-bit step). brightness_offset: subtract the median
+    photometric residual (a global exposure change). photometric_depth_noise: add the current depth's noise, seen through the image
+    gradient, to each photometric σ. colour_parallax_m: the colour–depth baseline that the colour registration leaves out; colour at
+    depth z then lies f·b·|1/z − 1/z̃| pixels off (z̃ the frame's median depth, where a fitted colour camera is exact), added to each
+    photometric σ through the gradient. null: 0.025, the Kinect's RGB–IR baseline, for colour remapped by dataset.colour_camera without
+    dataset.colour_offset (7-Scenes tail ATE 2.674 -> 2.170 cm), else 0 (registered colour, or the offset modelled). photometric_weight:
+    an extra factor on the photometric information (1 = the noise scales alone decide). geometric_scale: "data" (σ(z) shapes the
+    per-pixel point-to-plane weights, the MAD of the residuals sets the overall scale, at least depth_quantum metres, as for the
+    photometric term) or "model" (scale ≥ σ(z)). outlier_sigmas: a pair whose depth difference exceeds this many robust σ is rejected
+    (occlusion, another surface). max_normal_angle_deg: reject point-to-plane pairs whose normals disagree more. min_depth, max_depth:
+    usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than this many of its pixels (|w|·f
+    + |v|·f/z̄, z̄ the median depth); stall_pixels: or by less than this without shrinking. damping: Levenberg–Marquardt λ relative to
+    diag(H). max_points: at most about this many current pixels at the finest level (every k-th pixel on both axes; 0 = all): past a few
+    ten thousand the estimate is limited by systematic errors, not by the count. coarse_points_ratio: each coarser level takes this many
+    times fewer (level l: max_points / ratio^l; 1 = the same cap at every level). 2 cut the odometry's time by 10-22 % on both real
+    tails at the same ATE, but the coarse levels carry large motions: with a camera whipping 70-90° (fast_turn) camera ATE went 1.24 ->
+    1.58 cm and an object track was lost, so the default stays 1. inlier_sigmas: a usable pair is an inlier when its depth difference is
+    within this many σ_pair of the sensor model (absolute, so it measures the alignment, not the adaptive scale). min_correspondences,
+    min_overlap, min_inlier_ratio, max_pose_std: thresholds of :attr:`OdometryResult.ok`.
     """
 
     section: ClassVar[str] = "odometry"
@@ -214,6 +211,7 @@ class OdometryConfig(Settings):
     intensity_sigma_min: float = setting(1.0 / 255.0, gt=0)
     brightness_offset: bool = True
     photometric_depth_noise: bool = True
+    colour_parallax_m: float | None = setting(None, ge=0)
     photometric_weight: float = setting(1.0, ge=0)
     geometric_scale: str = setting("data", choices=("data", "model"))
     depth_quantum: float = setting(0.0002, gt=0)

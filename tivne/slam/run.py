@@ -22,6 +22,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from data_modules.frame import Intrinsics
+from data_modules.sensor import KINECT_COLOUR_BASELINE_M
 from data_modules.sequence import SequenceDataModule
 from tivne.config import (
     AllocationConfig,
@@ -105,10 +106,19 @@ class TrainSettings:
         """Check every section (raises :class:`tivne.config.ConfigError` naming the bad key)."""
         sections = typing.get_type_hints(cls)
         settings = cls(**{name: kind.from_mapping(plain(cfg[name])) for name, kind in sections.items()})
+        if settings.odometry.colour_parallax_m is None:  # null: from how the dataset registers colour
+            settings = replace(settings, odometry=replace(settings.odometry, colour_parallax_m=unmodelled_parallax(cfg.get("dataset"))))
         if settings.field.name == "objects" and settings.object_field.tracks == "tracked" and not settings.objects.track:
             raise ConfigError("object_field.tracks=tracked: the object fields are placed by the object tracker; set objects.track=true "
                               "(or object_field.tracks=oracle for the dataset's GT object poses)")
         return settings
+
+
+def unmodelled_parallax(dataset: DictConfig | None) -> float:
+    """``odometry.colour_parallax_m`` for ``null`` (:class:`tivne.config.OdometryConfig`): the Kinect's
+    RGB–IR baseline where a dataset section remaps colour by ``colour_camera`` alone, else 0."""
+    remapped = dataset is not None and dataset.get("colour_camera") is not None and dataset.get("colour_offset") is None
+    return KINECT_COLOUR_BASELINE_M if remapped else 0.0
 
 
 def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvider | None = None, seed: int = 0) -> SlamLoop:

@@ -190,9 +190,22 @@ def _photometric(
     scale = noise
     if cfg.photometric_depth_noise:  # per pixel: the current depth's noise seen through the gradient
         scale = torch.hypot(noise, (g * dp_dz).sum(0) * kinect_depth_sigma(src.points[2], cfg.depth_sigma))
+    if cfg.colour_parallax_m:  # per pixel: where unregistered colour may sit, seen through the gradient
+        offset = parallax_pixels(src.points[2], float(ref.K[0, 0]), cfg.colour_parallax_m)
+        scale = torch.hypot(scale, offset * torch.hypot(s[1], s[2]))
     rows = _rows(p, g, r)
     wts = _kernel(r / scale, cfg) * valid
     return rows, wts / scale**2, wts, noise
+
+
+def parallax_pixels(z: torch.Tensor, focal: float, baseline: float) -> torch.Tensor:
+    """(N,) pixels by which colour remapped as if its camera shared the depth camera's centre is off at
+    depths z (N,) metres: f·b·|1/z − 1/z̃| for an unmodelled baseline b, z̃ the median depth (where a
+    colour camera fitted to the frames is exact, its principal point absorbing the mean parallax)."""
+    if z.numel() == 0:
+        return z
+    inverse = 1.0 / z.clamp_min(1e-3)
+    return focal * baseline * (inverse - inverse.median()).abs()
 
 
 def _geometric(
