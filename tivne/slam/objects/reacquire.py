@@ -120,9 +120,9 @@ def reacquire(references: list[Reference], track: ObjectTrack, pyramid: list[Pyr
     prediction turned about the object's origin (:func:`rotation_hypotheses`), each hypothesis
     centred on what is seen now (``centre`` (3,), world; :func:`centred_on`) by the stored view
     nearest its side and aligned at the coarsest level against that view; the best ``REFINED`` and
-    the prediction refined at every level; the best of those (:func:`best_alignment`, the prediction
-    unless another is clearly better), and a turned one only when it fits the texture about as well
-    as the object's recent alignments did (``typical_rms``; nan: not checked). The result may fail:
+    the prediction refined at every level; the one :func:`reacquired` takes (a turned one only when it
+    fits the texture about as well as the object's recent alignments did, ``typical_rms``; nan: not
+    checked). The result may fail:
     then the caller waits for another view or restarts from the prediction."""
     coarse = replace(odometry, levels=1, max_iterations=COARSE_ITERATIONS)
     axes = T_wc[:3, :3].T.double()  # the camera's axes in the world
@@ -141,8 +141,22 @@ def reacquire(references: list[Reference], track: ObjectTrack, pyramid: list[Pyr
     refined = [Hypothesis(h.T_wo, track_pyramids(r.pyramid, pyramid, odometry_init(h.T_wo, T_wc, r.C), odometry))
                for h, r in zip(tops, refs)]
     k_pred = next(i for i, h in enumerate(tops) if h is candidates[0])
-    best = best_alignment(refined, preferred=refined[k_pred])
-    k = next((i for i, h in enumerate(refined) if h is best), k_pred)
-    if k != k_pred and refined[k].result.rms_photometric > MAX_RMS_RATIO * typical_rms:  # False when either is nan
-        k = k_pred
+    best = reacquired(refined, refined[k_pred], typical_rms)
+    k = next(i for i, h in enumerate(refined) if h is best)
     return refs[k], refined[k].result
+
+
+def reacquired(refined: list[Hypothesis], prediction: Hypothesis, typical_rms: float) -> Hypothesis:
+    """The pose taken among the ``refined`` hypotheses (``prediction`` one of them): the best
+    (:func:`best_alignment`, the prediction unless another is clearly better) of those whose
+    photometric RMS is within ``MAX_RMS_RATIO`` of the object's ``typical_rms``, or of all when none
+    is (or ``typical_rms`` is nan); a turned one only when it fits the texture that well. The support
+    (overlap × inlier ratio) does not decide first: its overlap depends on the stored view each
+    hypothesis picked, so a box turned by 90° can out-support the right pose on geometry alone
+    (measured, crossing: 0.80 × 0.86 against 0.41 × 0.97, RMS 0.16 against 0.022, typical 0.017)."""
+    textured = [h for h in refined if h.result.rms_photometric <= MAX_RMS_RATIO * typical_rms]  # none when either is nan
+    pool = textured or refined
+    best = best_alignment(pool, preferred=prediction if any(h is prediction for h in pool) else None) or prediction
+    if best is not prediction and best.result.rms_photometric > MAX_RMS_RATIO * typical_rms:  # False when either is nan
+        return prediction
+    return best

@@ -9,7 +9,7 @@ import torch
 from data_modules.poses import rotation_vector
 from tivne.geometry import se3_exp
 from tivne.slam.objects.motion import centred_information
-from tivne.slam.objects.reacquire import Hypothesis, best_alignment, rotation_hypotheses, spin_axis
+from tivne.slam.objects.reacquire import Hypothesis, best_alignment, reacquired, rotation_hypotheses, spin_axis
 from tivne.slam.tracking.odometry import OdometryResult
 
 
@@ -56,6 +56,22 @@ def test_the_prediction_is_kept_unless_another_hypothesis_is_clearly_better():
     assert best_alignment([turned, unaligned], preferred=unaligned) is turned
     half = Hypothesis(torch.eye(4, dtype=torch.float64), result(0.4, 1.0, 0.13))  # explains less than 80 % as many pixels
     assert best_alignment([turned, half], preferred=half) is turned
+
+
+def test_the_pose_that_fits_the_texture_wins_over_a_better_supported_turn():
+    """Crossing's near box back after a gap (measured): the right pose sees less of its stored view
+    (overlap 0.41) than a 90° turn sees of another (0.80), but only it fits the texture as the
+    object's recent alignments did."""
+    right = Hypothesis(torch.eye(4, dtype=torch.float64), result(0.41, 0.97, 0.022))
+    turned = Hypothesis(2 * torch.eye(4, dtype=torch.float64), result(0.80, 0.86, 0.162))
+    turned_too = Hypothesis(3 * torch.eye(4, dtype=torch.float64), result(0.87, 0.81, 0.166))
+    prediction = Hypothesis(4 * torch.eye(4, dtype=torch.float64), result(0.41, 0.47, 0.134))
+    refined = [right, turned, turned_too, prediction]
+    assert reacquired(refined, prediction, typical_rms=0.0169) is right
+    # nothing fits the texture that well: no turn is taken, the prediction stays
+    assert reacquired(refined, prediction, typical_rms=0.005) is prediction
+    # without a typical RMS (no recent alignment) the support and the texture decide as before
+    assert reacquired(refined, prediction, typical_rms=math.nan) is turned
 
 
 def test_centred_prior_penalises_a_spin_about_the_centre_as_a_rotation_only():
