@@ -196,6 +196,19 @@ def _baseline_partner(times: np.ndarray, end: int, baseline: float, direction: i
     return int(np.clip(np.searchsorted(times, times[end] + baseline, side="left"), end + 1, n - 1))
 
 
+def _end_partners(times: np.ndarray, end: int, baseline: float, direction: int) -> tuple[int | None, int | None]:
+    """For a gap's ``end`` (``direction`` -1: the gap's start, looking back; +1: its end, looking on),
+    the sample that measures the end's spin (:func:`_baseline_partner`, when within 2·baseline) and the
+    one that measures its velocity: that one, else the next sample when within 2·baseline (a short run
+    between two gaps: its position moves enough to read, its spin too little); None where there is none."""
+    near = end + direction
+    if not 0 <= near < len(times):
+        return None, None
+    spin = _baseline_partner(times, end, baseline, direction)
+    spin = spin if abs(times[spin] - times[end]) <= 2 * baseline else None
+    return spin, spin if spin is not None else (near if abs(times[near] - times[end]) <= 2 * baseline else None)
+
+
 def hermite(p0: torch.Tensor, v0: torch.Tensor, p1: torch.Tensor, v1: torch.Tensor, span: float, s: float) -> torch.Tensor:
     """The cubic (3,) through p0 (3,) at s = 0 and p1 (3,) at s = 1 with velocities v0, v1 (3,) per
     second over ``span`` seconds: exact for any motion of constant acceleration (a body that slows,
@@ -212,13 +225,15 @@ def pose_on_track(times: np.ndarray, poses: torch.Tensor, t: float, baseline: fl
     apart as the interpolation treats them (a body that slides and spins about its origin keeps
     doing so), t(s) = t_e + v·s and R(s) = exp(ω·s)·R_e; v and ω are measured between the end sample
     and the sample ``baseline`` seconds (at least one sample) inside it, so one noisy pose does not
-    set the speed. Across a longer gap with samples within 2·baseline on both sides: the rotation is
+    set the speed. Across a longer gap: with samples about a baseline inside both ends the rotation is
     both ends' carried on at their own angular velocities into the gap and blended by the time fraction
     (exact for a constant spin; SLERP alone takes the short way round, wrong once the body turns more
-    than half a turn in the gap); the position is the cubic through both ends' positions and velocities
-    (:func:`hermite`: exact for a constant slide and for a constant acceleration, so a body that stops
-    and turns back unseen is followed; blending the carried positions was 27 cm off one that turned
-    back in a 0.9 s gap, the cubic 2.7 cm). With one sample the pose is held.
+    than half a turn in the gap), else SLERP; the position is the cubic through both ends' positions
+    and velocities (:func:`hermite`: exact for a constant slide and for a constant acceleration, so a
+    body that stops and turns back unseen is followed; blending the carried positions was 27 cm off
+    one that turned back in a 0.9 s gap, the cubic 2.7 cm), an end's velocity from a short run of
+    samples when that is all there is (:func:`_end_partners`), the straight line's where there is
+    none. With one sample the pose is held.
 
     ``pivot``: the body point whose path is interpolated and continued (the rotation turns the body
     about it); None: the origin. A body's motion is simplest about its centre: a box turning in place
@@ -246,14 +261,19 @@ def pose_on_track(times: np.ndarray, poses: torch.Tensor, t: float, baseline: fl
         return _carried(times, poses, end, _baseline_partner(times, end, baseline, -1 if end else +1), t)
     b = int(np.clip(np.searchsorted(times, t), 1, n - 1))
     a = b - 1
-    if times[b] - times[a] > baseline and 1 <= a and b <= n - 2 and min(t - times[a], times[b] - t) > TIME_TOLERANCE_S:
-        before, after = _baseline_partner(times, a, baseline, -1), _baseline_partner(times, b, baseline, +1)
-        if times[a] - times[before] <= 2 * baseline and times[after] - times[b] <= 2 * baseline:
-            ends = torch.stack([_carried(times, poses, a, before, t), _carried(times, poses, b, after, t)])
-            s = (t - times[a]) / (times[b] - times[a])
-            out = interpolate_poses(np.array([0.0, 1.0]), ends, np.asarray([s]))[0][0]
-            v_a, v_b = _velocity(times, poses, a, before)[1], _velocity(times, poses, b, after)[1]
-            out[:3, 3] = hermite(poses[a, :3, 3], v_a, poses[b, :3, 3], v_b, times[b] - times[a], s)
-            return out
-    q = float(np.clip(t, times[0], times[-1]))
-    return interpolate_poses(times, poses, np.asarray([q]), tolerance=TIME_TOLERANCE_S)[0][0]
+    span = times[b] - times[a]
+    (spin_a, moved_a), (spin_b, moved_b) = _end_partners(times, a, baseline, -1), _end_partners(times, b, baseline, +1)
+    gap = span > baseline and min(t - times[a], times[b] - t) > TIME_TOLERANCE_S
+    s = (t - times[a]) / span
+    if gap and spin_a is not None and spin_b is not None:  # each end carried on at its own spin, blended
+        ends = torch.stack([_carried(times, poses, a, spin_a, t), _carried(times, poses, b, spin_b, t)])
+        out = interpolate_poses(np.array([0.0, 1.0]), ends, np.asarray([s]))[0][0]
+    else:
+        out = interpolate_poses(times, poses, np.asarray([float(np.clip(t, times[0], times[-1]))]), tolerance=TIME_TOLERANCE_S)[0][0]
+    if not gap:
+        return out
+    chord = (poses[b, :3, 3] - poses[a, :3, 3]) / span  # an end without a velocity follows the line
+    v_a = chord if moved_a is None else _velocity(times, poses, a, moved_a)[1]
+    v_b = chord if moved_b is None else _velocity(times, poses, b, moved_b)[1]
+    out[:3, 3] = hermite(poses[a, :3, 3], v_a, poses[b, :3, 3], v_b, span, s)
+    return out
