@@ -20,7 +20,7 @@ After Steinbrücker et al. (2011), Kerl et al. (DVO, 2013), ElasticFusion (2015)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 import torch.nn.functional as F
@@ -84,12 +84,14 @@ class PosePrior:
 @dataclass(frozen=True)
 class _Source:
     """The current frame's pixels at one level, in its colour camera's frame at the colour timestamp:
-    points (3, N), intensity (N,), normals (3, N), has_colour (N,) bool (the point sees the colour image)."""
+    points (3, N), intensity (N,), normals (3, N), has_colour (N,) bool (the point sees the colour image),
+    parallax (N,) pixels its colour may be off (:func:`parallax_pixels`; None: registered colour)."""
 
     points: torch.Tensor
     intensity: torch.Tensor
     normals: torch.Tensor
     has_colour: torch.Tensor
+    parallax: torch.Tensor | None = None
 
 
 def _sample(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
@@ -190,9 +192,8 @@ def _photometric(
     scale = noise
     if cfg.photometric_depth_noise:  # per pixel: the current depth's noise seen through the gradient
         scale = torch.hypot(noise, (g * dp_dz).sum(0) * kinect_depth_sigma(src.points[2], cfg.depth_sigma))
-    if cfg.colour_parallax_m:  # per pixel: where unregistered colour may sit, seen through the gradient
-        offset = parallax_pixels(src.points[2], float(ref.K[0, 0]), cfg.colour_parallax_m)
-        scale = torch.hypot(scale, offset * torch.hypot(s[1], s[2]))
+    if src.parallax is not None:  # per pixel: where unregistered colour may sit, seen through the gradient
+        scale = torch.hypot(scale, src.parallax * torch.hypot(s[1], s[2]))
     rows = _rows(p, g, r)
     wts = _kernel(r / scale, cfg) * valid
     return rows, wts / scale**2, wts, noise
@@ -371,6 +372,8 @@ def track_pyramids(
     iterations, converged, lin, n_src = [], False, None, 0
     for level in reversed(range(min(len(ref), len(cur), config.levels))):
         src = _source(cur[level], config.max_points / config.coarse_points_ratio**level, cur_rgb_depth, config.min_depth)
+        if config.colour_parallax_m:  # once per level: the points do not move between iterations
+            src = replace(src, parallax=parallax_pixels(src.points[2], float(cur[level].K[0, 0]), config.colour_parallax_m))
         T, its, converged, lin = _track_level(ref[level], src, T, A, config, prior, tuple((p[level], X) for p, X in also) if level == 0 else ())
         iterations.append(its)
         n_src = src.points.shape[1]
