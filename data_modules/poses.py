@@ -177,10 +177,10 @@ def _velocity(times: np.ndarray, poses: torch.Tensor, end: int, inner: int) -> t
     return rotation_vector(B[:3, :3] @ A[:3, :3].T) / span, (B[:3, 3] - A[:3, 3]) / span
 
 
-def _carried(times: np.ndarray, poses: torch.Tensor, end: int, inner: int, t: float) -> torch.Tensor:
-    """Sample ``end`` (4, 4) carried on to time ``t`` at the velocity between samples ``inner`` and
-    ``end``: translation and rotation apart, t(s) = t_e + v·s and R(s) = exp(ω·s)·R_e."""
-    omega, v = _velocity(times, poses, end, inner)
+def _carried(times: np.ndarray, poses: torch.Tensor, end: int, velocity: tuple[torch.Tensor, torch.Tensor], t: float) -> torch.Tensor:
+    """Sample ``end`` (4, 4) carried on to time ``t`` at ``velocity`` (ω, v) (:func:`_velocity`):
+    translation and rotation apart, t(s) = t_e + v·s and R(s) = exp(ω·s)·R_e."""
+    omega, v = velocity
     out = poses[end].clone()
     out[:3, :3] = rotation_from_vector(omega * (t - times[end])) @ poses[end, :3, :3]
     out[:3, 3] = poses[end, :3, 3] + v * (t - times[end])
@@ -258,22 +258,21 @@ def pose_on_track(times: np.ndarray, poses: torch.Tensor, t: float, baseline: fl
         return poses[0].clone()
     if not times[0] - TIME_TOLERANCE_S <= t <= times[-1] + TIME_TOLERANCE_S:
         end = n - 1 if t > times[-1] else 0
-        return _carried(times, poses, end, _baseline_partner(times, end, baseline, -1 if end else +1), t)
+        return _carried(times, poses, end, _velocity(times, poses, end, _baseline_partner(times, end, baseline, -1 if end else +1)), t)
     b = int(np.clip(np.searchsorted(times, t), 1, n - 1))
     a = b - 1
     span = times[b] - times[a]
+    if span <= baseline or min(t - times[a], times[b] - t) <= TIME_TOLERANCE_S:  # no gap: SLERP + linear
+        return interpolate_poses(times, poses, np.asarray([float(np.clip(t, times[0], times[-1]))]), tolerance=TIME_TOLERANCE_S)[0][0]
     (spin_a, moved_a), (spin_b, moved_b) = _end_partners(times, a, baseline, -1), _end_partners(times, b, baseline, +1)
-    gap = span > baseline and min(t - times[a], times[b] - t) > TIME_TOLERANCE_S
-    s = (t - times[a]) / span
-    if gap and spin_a is not None and spin_b is not None:  # each end carried on at its own spin, blended
-        ends = torch.stack([_carried(times, poses, a, spin_a, t), _carried(times, poses, b, spin_b, t)])
-        out = interpolate_poses(np.array([0.0, 1.0]), ends, np.asarray([s]))[0][0]
-    else:
-        out = interpolate_poses(times, poses, np.asarray([float(np.clip(t, times[0], times[-1]))]), tolerance=TIME_TOLERANCE_S)[0][0]
-    if not gap:
-        return out
     chord = (poses[b, :3, 3] - poses[a, :3, 3]) / span  # an end without a velocity follows the line
-    v_a = chord if moved_a is None else _velocity(times, poses, a, moved_a)[1]
-    v_b = chord if moved_b is None else _velocity(times, poses, b, moved_b)[1]
-    out[:3, 3] = hermite(poses[a, :3, 3], v_a, poses[b, :3, 3], v_b, span, s)
+    vel_a = (None, chord) if moved_a is None else _velocity(times, poses, a, moved_a)
+    vel_b = (None, chord) if moved_b is None else _velocity(times, poses, b, moved_b)
+    s = (t - times[a]) / span
+    if spin_a is not None and spin_b is not None:  # each end carried on at its own spin, blended
+        out = interpolate_poses(np.array([0.0, 1.0]), torch.stack([_carried(times, poses, a, vel_a, t), _carried(times, poses, b, vel_b, t)]),
+                                np.asarray([s]))[0][0]
+    else:  # SLERP between the ends
+        out = interpolate_poses(times[a:b + 1], poses[a:b + 1], np.asarray([float(t)]), tolerance=TIME_TOLERANCE_S)[0][0]
+    out[:3, 3] = hermite(poses[a, :3, 3], vel_a[1], poses[b, :3, 3], vel_b[1], span, s)
     return out
