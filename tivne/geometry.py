@@ -208,3 +208,15 @@ def pose_difference(A: torch.Tensor, B: torch.Tensor) -> tuple[float, float]:
     """(metres, degrees) of A⁻¹ B for two (4, 4) rigid transforms (computed in float64)."""
     D = invert_pose(A.double()) @ B.double()
     return float(D[:3, 3].norm()), rotation_angle_deg(D)
+
+
+def eigen_range(H: torch.Tensor) -> tuple[float, float]:
+    """Smallest and largest eigenvalue (clamped at 0) of a symmetric (n, n) information matrix; (0, 0)
+    when it is not finite or the eigensolver fails on it (a degenerate alignment: nothing is known)."""
+    if not bool(torch.isfinite(H).all()):
+        return 0.0, 0.0
+    try:
+        eig = torch.linalg.eigvalsh(H).clamp_min(0.0)
+    except torch.linalg.LinAlgError:
+        return 0.0, 0.0
+    return float(eig[0]), float(eig[-1])

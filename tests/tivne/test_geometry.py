@@ -210,3 +210,12 @@ class TestDataLayerReExports:
 
         for name in ("quat_to_matrix", "matrix_to_quat", "pose_from_tq", "orthonormalize_pose"):
             assert getattr(G, name) is getattr(poses, name), name
+
+
+def test_eigen_range_of_an_information_matrix_and_of_a_degenerate_one():
+    H = torch.diag(torch.tensor([4.0, 1.0, 9.0, 2.0, 3.0, 5.0], dtype=torch.float64))
+    assert G.eigen_range(H) == (1.0, 9.0)
+    bad = H.clone()
+    bad[0, 0] = float("nan")  # an alignment whose linearisation went non-finite: no pose information
+    assert G.eigen_range(bad) == (0.0, 0.0)
+    assert G.eigen_range(torch.full((6, 6), float("inf"), dtype=torch.float64)) == (0.0, 0.0)

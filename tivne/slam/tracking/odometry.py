@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from data_modules.poses import rotation_vector
 from data_modules.sensor import kinect_depth_sigma
 from tivne.config import OdometryConfig
-from tivne.geometry import adjoint_vw, invert_pose, project, se3_step
+from tivne.geometry import adjoint_vw, eigen_range, invert_pose, project, se3_step
 from tivne.slam.tracking.pyramid import PyramidLevel, build_pyramid
 from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale, subsample
 
@@ -383,8 +383,7 @@ def track_pyramids(
 def _result(
     T: torch.Tensor, converged: bool, lin: _Linearisation, n_src: int, iterations: tuple[int, ...], cfg: OdometryConfig
 ) -> OdometryResult:
-    eig = torch.linalg.eigvalsh(lin.H).clamp_min(0.0)
-    min_eig, max_eig = float(eig[0]), float(eig[-1])
+    min_eig, max_eig = eigen_range(lin.H)
     pose_std = 1.0 / math.sqrt(min_eig) if min_eig > 0 else math.inf
     overlap = lin.num_usable / max(n_src, 1)
     inlier_ratio = lin.num_inliers / max(lin.num_usable, 1)
