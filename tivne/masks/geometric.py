@@ -83,6 +83,7 @@ class GeometricMasks(MaskProvider):
         self.clean_kwargs = dict(
             open_radius=open_radius, close_radius=close_radius, min_area=min_area, seed_fraction=seed_fraction,
             keep_fraction=keep_fraction, max_area_fraction=max_area_fraction, rel_jump=rel_jump, abs_jump=abs_jump,
+            crease_sigmas=cfg.crease_sigmas, crease_span=cfg.crease_span,
         )
         self.temporal = temporal
         self.revise_lags = None if revise_lags is None else (int(revise_lags[0]), int(revise_lags[1]))
@@ -90,6 +91,7 @@ class GeometricMasks(MaskProvider):
         if self.use_score:
             self.clean_kwargs |= dict(score_threshold=float(score_threshold), score_ratio=float(score_ratio))
         self.predict_margin = int(predict_margin)
+        self.max_total_fraction = cfg.max_total_fraction
         self.previous: np.ndarray | None = None  # low-resolution mask of the previous frame
         self._previous_tau: float | None = None
         self.timings_ms: list[float] = []
@@ -141,6 +143,11 @@ class GeometricMasks(MaskProvider):
         dnp = depth.cpu().numpy()
         previous = self.previous if self.temporal else None
         low = clean_mask(seeds.cpu().numpy(), dnp, previous, motion_score=self._score(score), **self.clean_kwargs)
+        if low.sum() > self.max_total_fraction * max(int((dnp > 0).sum()), 1):
+            # The camera is tracked on the static rest: a mask leaving less of it is the echo of a pose
+            # error (flagged pixels track worse, which flags more), not a world that moved; carried on
+            # it covered 97 % of static fr1 frames and lost 243 of 393.
+            low = np.zeros_like(low)
         self.previous = low
         self._previous_tau = float(context.tau)
         self.last_debug = {"seeds": seeds.cpu().numpy()}

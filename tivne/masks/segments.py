@@ -5,13 +5,52 @@ from __future__ import annotations
 import numpy as np
 
 
-def depth_segments(depth: np.ndarray, rel_jump: float = 0.1, abs_jump: float = 0.03) -> tuple[np.ndarray, int]:
-    """Label depth-continuous regions: neighbours join when |Δz| <= max(abs_jump, rel_jump · z).
+def concave_creases(depth: np.ndarray, sigmas: float, span: int = 2) -> np.ndarray:
+    """(H, W) bool: pixels on a concave crease, where two surfaces meet in a valley seen from the
+    camera (an object standing on the floor, a door at the floor or wall, a box against a wall).
+
+    On a plane, inverse depth q = 1/z is affine in the pixel coordinates for any pinhole camera, so
+    its second difference over ``span`` pixels, q(x - span) + q(x + span) - 2 q(x), is 0 whatever
+    the plane's slant; at a concave crease the middle lies behind its neighbours' chord and the
+    difference is positive, at a convex edge (a box's corner, a ball's limb) negative. A pixel is on
+    a crease when the difference along a row or a column exceeds ``sigmas`` times its noise,
+    √6 σ_q with σ_q = σ(z) / z² (σ(z): :func:`data_modules.sensor.kinect_depth_sigma`).
+
+    Args:
+        depth: (H, W) metres, 0 = invalid. sigmas: threshold in noise units. span: pixels to each side.
+    """
+    from data_modules.sensor import kinect_depth_sigma
+
+    d = depth.astype(np.float64)
+    valid = d > 0
+    safe = np.where(valid, d, 1.0)
+    q = np.where(valid, 1.0 / safe, 0.0)
+    limit = sigmas * np.sqrt(6.0) * kinect_depth_sigma(safe) / safe**2
+    crease = np.zeros_like(valid)
+    h, w = d.shape
+    if h > 2 * span:
+        second = q[: -2 * span] + q[2 * span :] - 2.0 * q[span:-span]
+        both = valid[: -2 * span] & valid[2 * span :] & valid[span:-span]
+        crease[span:-span] |= both & (second > limit[span:-span])
+    if w > 2 * span:
+        second = q[:, : -2 * span] + q[:, 2 * span :] - 2.0 * q[:, span:-span]
+        both = valid[:, : -2 * span] & valid[:, 2 * span :] & valid[:, span:-span]
+        crease[:, span:-span] |= both & (second > limit[:, span:-span])
+    return crease
+
+
+def depth_segments(
+    depth: np.ndarray, rel_jump: float = 0.1, abs_jump: float = 0.03, crease_sigmas: float | None = None, crease_span: int = 2,
+) -> tuple[np.ndarray, int]:
+    """Label depth-continuous regions: neighbours join when |Δz| <= max(abs_jump, rel_jump · z);
+    with ``crease_sigmas``, concave creases (:func:`concave_creases`) also separate them: an object
+    resting on the floor or a door near it is depth-continuous with the room at the contact and
+    would otherwise be one segment with the whole background.
 
     Args:
         depth: (H, W) metres, 0 = invalid (never labelled).
     Returns:
-        labels (H, W) int32 (0 = invalid or depth edge), number of labels.
+        labels (H, W) int32 (0 = invalid, depth edge or crease), number of labels.
     """
     from scipy import ndimage
 
@@ -29,6 +68,8 @@ def depth_segments(depth: np.ndarray, rel_jump: float = 0.1, abs_jump: float = 0
     edge[1:, :] |= dy & far_y
     edge[:-1, :] |= dy & ~far_y
     inner = valid & ~edge
+    if crease_sigmas is not None:
+        inner &= ~concave_creases(depth, crease_sigmas, crease_span)
     labels, n = ndimage.label(inner)
     return labels.astype(np.int32), int(n)
 
@@ -48,6 +89,8 @@ def clean_mask(
     motion_score: np.ndarray | None = None,
     score_threshold: float = 3.0,
     score_ratio: float = 2.0,
+    crease_sigmas: float | None = None,
+    crease_span: int = 2,
 ) -> np.ndarray:
     """Residual seeds -> a clean object mask (pure function, numpy).
 
@@ -60,7 +103,9 @@ def clean_mask(
        unknown) a segment is also dynamic when its median score reaches ``score_threshold`` and
        ``score_ratio`` times the largest segment's (the background's, so a pose error that moves
        everything does not fire): averaging over the segment catches motion far below the per-pixel
-       seed threshold.
+       seed threshold. With ``crease_sigmas`` segments also end at concave creases
+       (:func:`concave_creases`): an object on the floor, or a door, is depth-continuous with the
+       room and would otherwise be part of the background.
     3. Closing fills holes; the result is restricted to valid depth.
 
     Args:
@@ -74,7 +119,7 @@ def clean_mask(
     s = seeds & valid
     if open_radius > 0:
         s = ndimage.binary_opening(s, structure=np.ones((2 * open_radius + 1,) * 2, bool))
-    labels, n = depth_segments(depth, rel_jump, abs_jump)
+    labels, n = depth_segments(depth, rel_jump, abs_jump, crease_sigmas, crease_span)
     if n == 0:
         return np.zeros_like(valid)
     idx = np.arange(1, n + 1)

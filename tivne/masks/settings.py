@@ -53,8 +53,13 @@ class GeometricMasksConfig(Settings):
     close_radius: morphology of the seeds (low-resolution pixels); segments smaller than min_area are
     never dynamic; a segment is dynamic when seeds cover seed_fraction of it, or keep_fraction of it was
     dynamic in the previous frame (temporal), unless it covers more than max_area_fraction of the valid
-    pixels (background); neighbours join a segment if |Δz| <= max(abs_jump, rel_jump·z); tracking (before
-    this frame's mask exists) leaves out the previous mask grown by predict_margin; score_threshold /
+    pixels (background: once creases split the room into floor and walls, 0.4 let a floor piece that an object
+    leaked into be flagged, 38 % of a three_objects frame); neighbours join a segment if |Δz| <= max(abs_jump, rel_jump·z) and no concave crease parts them
+    (crease_sigmas: inverse depth's second difference over crease_span low-resolution pixels beyond this many σ of
+    the sensor noise, :func:`tivne.masks.segments.concave_creases`; null = depth jumps only, which leaves an object
+    on the floor, or a door, in the background's segment: the door preset's geometric-mask recall was 0.4 %); tracking (before
+    this frame's mask exists) leaves out the previous mask grown by predict_margin; a mask over more than
+    max_total_fraction of the valid pixels is dropped (the frame gets none, the next starts afresh); score_threshold /
     score_ratio: a segment whose median |static-world residual|/σ(z) against the first lag reaches the
     threshold and the ratio times the background's is dynamic (null threshold = off); revise_lags (a, b):
     keyframes a..b frames back are re-tested against each new frame and their masks grow (null = off)."""
@@ -74,9 +79,12 @@ class GeometricMasksConfig(Settings):
     min_area: int = setting(12, ge=0)
     seed_fraction: float = setting(0.04, ge=0, le=1)
     keep_fraction: float = setting(0.5, ge=0, le=1)
-    max_area_fraction: float = setting(0.4, gt=0, le=1)
+    max_area_fraction: float = setting(0.25, gt=0, le=1)
     rel_jump: float = setting(0.1, ge=0)
     abs_jump: float = setting(0.03, ge=0)
+    crease_sigmas: float | None = setting(3.0, gt=0)
+    crease_span: int = setting(2, ge=1)
+    max_total_fraction: float = setting(0.5, gt=0, le=1)
     temporal: bool = True
     predict_margin: int = setting(2, ge=0)
     score_threshold: float | None = setting(3.0, gt=0)

@@ -107,6 +107,20 @@ def test_geometric_frames_source_segments_the_moved_object():
     assert (provider(make_frame(2, depth=depth), ctx(2)) & now).sum() > 0.8 * now.sum()
 
 
+def test_geometric_drops_a_mask_that_leaves_too_little_static_scene():
+    K = Intrinsics(50.0, 50.0, W / 2, H / 2, W, H).K()
+    ctx = lambda k: MaskContext(None, torch.eye(4), K, k / 30, RenderConfig(), k)  # noqa: E731
+    strips = torch.linspace(1.5, 3.5, 5).repeat_interleave(W // 5 + 1)[:W].expand(H, W).clone()  # five surfaces, depth jumps between
+    closer = strips.clone()
+    closer[:, : 3 * W // 5] -= 0.4  # three of them 40 cm closer (as a pose error would show them): 60 % of the view
+    for fraction, expect in ((1.0, True), (0.5, False)):
+        provider = GeometricMasks(source="frames", stride=1, min_area=4, max_total_fraction=fraction)
+        provider(make_frame(0, depth=strips), ctx(0))
+        mask = provider(make_frame(1, depth=closer), ctx(1))
+        assert bool(mask[:, : W // 2].float().mean() > 0.8) is expect and not mask[:, 4 * W // 5 :].any()
+        assert bool(provider.previous is not None and provider.previous.any()) is expect  # not carried to the next frame either
+
+
 def test_geometric_predict_gives_tracking_the_previous_mask_grown():
     K = Intrinsics(50.0, 50.0, W / 2, H / 2, W, H).K()
     provider = GeometricMasks(source="frames", stride=1, min_area=4, predict_margin=2)

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tivne.masks.segments import clean_mask, depth_segments
+from data_modules.sensor import kinect_depth_sigma
+from tivne.masks.segments import clean_mask, concave_creases, depth_segments
 
 sys.path.insert(0, str(Path(__file__).parent))
 from mask_scenes import H, W, scene_depth, square  # noqa: E402
@@ -53,3 +54,59 @@ def test_clean_mask_segment_score_catches_slow_motion_but_not_a_pose_error():
     # Unknown residuals (NaN) do not count; a segment mostly unknown is not judged.
     unknown = np.where(moving.numpy(), np.nan, slow)
     assert not clean_mask(none, depth, motion_score=unknown, min_area=4).any()
+
+
+# A 80x60 pinhole camera looking along +z, y down: a floor 0.8 m below it, a wall at 4 m and a door
+# (a vertical plane at 2 m, 1 m wide, 1.2 m tall) standing on the floor.
+F, CX, CY, FLOOR, WALL, DOOR = 60.0, 39.5, 29.5, 0.8, 4.0, 2.0
+
+
+def _rays(w: int = 80, h: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    return (u - CX) / F, (v - CY) / F
+
+
+def door_on_floor() -> tuple[np.ndarray, np.ndarray]:
+    """(60, 80) depth of the room and the door's (60, 80) bool mask."""
+    x, y = _rays()
+    floor = np.where(y > 0, FLOOR / np.maximum(y, 1e-9), np.inf)
+    depth = np.minimum(floor, WALL)
+    door = (np.abs(x * DOOR) <= 0.5) & (y * DOOR >= FLOOR - 1.2) & (DOOR <= depth)
+    depth[door] = DOOR
+    return depth, door
+
+
+def test_concave_creases_mark_where_a_door_meets_the_floor_but_not_planes_or_convex_edges():
+    depth, door = door_on_floor()
+    crease = concave_creases(depth, 3.0)
+    contact = int(np.ceil(CY + F * FLOOR / DOOR))  # the first floor row in front of the door
+    rows = np.nonzero(crease[20:, 40])[0] + 20  # below the door's top (the far side of a depth jump is marked too)
+    assert len(rows) and np.abs(rows - contact).max() <= 2
+    inside = door.copy()
+    inside[contact - 3 :] = False
+    assert not crease[inside].any()  # the door's own plane
+    assert not crease[contact + 4 :].any()  # the floor in front of it, slanted as it is
+    # A ridge pointing at the camera (a box's vertical edge) is convex, a valley (a room's corner) concave.
+    x, _ = _rays()
+    left, right = DOOR / (1 - 0.8 * x), DOOR / (1 + 0.8 * x)  # planes z = D ± 0.8 x through the line x = 0, z = D
+    assert not concave_creases(np.maximum(left, right), 3.0).any()
+    valley = concave_creases(np.minimum(left, right), 3.0)
+    assert valley.any() and (np.abs(np.nonzero(valley)[1] - CX) <= 2.5).all()
+    # Sensor noise on a slanted plane: hardly a crease.
+    rng = np.random.default_rng(0)
+    noisy = depth + rng.normal(size=depth.shape) * kinect_depth_sigma(depth)
+    assert concave_creases(noisy, 3.0)[contact + 4 :].mean() < 0.01
+
+
+def test_creases_cut_a_door_off_the_room_so_its_seeds_make_it_dynamic():
+    depth, door = door_on_floor()
+    labels, _ = depth_segments(depth)
+    assert labels[door & (labels > 0)].max() == labels[-1, 40]  # door, floor and wall: one segment
+    labels, _ = depth_segments(depth, crease_sigmas=3.0)
+    on_door = np.unique(labels[door & (labels > 0)])
+    assert len(on_door) == 1 and not (labels[~door] == on_door[0]).any()
+    seeds = np.zeros_like(door)
+    seeds[door & (np.arange(80)[None, :] > 40)] = True  # the swinging half of the door
+    assert not clean_mask(seeds, depth, min_area=4).any()  # part of the background
+    out = clean_mask(seeds, depth, min_area=4, crease_sigmas=3.0)
+    assert (out & door).sum() >= 0.9 * door.sum() and (out & ~door).sum() <= 0.05 * door.sum()
