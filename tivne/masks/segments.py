@@ -27,15 +27,12 @@ def concave_creases(depth: np.ndarray, sigmas: float, span: int = 2) -> np.ndarr
     q = np.where(valid, 1.0 / safe, 0.0)
     limit = sigmas * np.sqrt(6.0) * kinect_depth_sigma(safe) / safe**2
     crease = np.zeros_like(valid)
-    h, w = d.shape
-    if h > 2 * span:
-        second = q[: -2 * span] + q[2 * span :] - 2.0 * q[span:-span]
-        both = valid[: -2 * span] & valid[2 * span :] & valid[span:-span]
-        crease[span:-span] |= both & (second > limit[span:-span])
-    if w > 2 * span:
-        second = q[:, : -2 * span] + q[:, 2 * span :] - 2.0 * q[:, span:-span]
-        both = valid[:, : -2 * span] & valid[:, 2 * span :] & valid[:, span:-span]
-        crease[:, span:-span] |= both & (second > limit[:, span:-span])
+    # Along the columns, then along the rows: the transposes are views, so crease.T is written through.
+    for qq, vv, ll, out in ((q, valid, limit, crease), (q.T, valid.T, limit.T, crease.T)):
+        if qq.shape[0] > 2 * span:
+            second = qq[: -2 * span] + qq[2 * span :] - 2.0 * qq[span:-span]
+            both = vv[: -2 * span] & vv[2 * span :] & vv[span:-span]
+            out[span:-span] |= both & (second > ll[span:-span])
     return crease
 
 

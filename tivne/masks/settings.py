@@ -53,11 +53,12 @@ class GeometricMasksConfig(Settings):
     close_radius: morphology of the seeds (low-resolution pixels); segments smaller than min_area are
     never dynamic; a segment is dynamic when seeds cover seed_fraction of it, or keep_fraction of it was
     dynamic in the previous frame (temporal), unless it covers more than max_area_fraction of the valid
-    pixels (background: once creases split the room into floor and walls, 0.4 let a floor piece that an object
-    leaked into be flagged, 38 % of a three_objects frame); neighbours join a segment if |Δz| <= max(abs_jump, rel_jump·z) and no concave crease parts them
-    (crease_sigmas: inverse depth's second difference over crease_span low-resolution pixels beyond this many σ of
-    the sensor noise, :func:`tivne.masks.segments.concave_creases`; null = depth jumps only, which leaves an object
-    on the floor, or a door, in the background's segment: the door preset's geometric-mask recall was 0.4 %); tracking (before
+    pixels (background); neighbours join a segment if |Δz| <= max(abs_jump, rel_jump·z) and no concave crease
+    parts them (crease_sigmas: inverse depth's second difference over crease_span low-resolution pixels beyond this
+    many σ of the sensor noise, :func:`tivne.masks.segments.concave_creases`; null = depth jumps only, which leaves an
+    object on the floor, or a door, in the background's segment: the door preset's geometric-mask recall was 0.4 %).
+    Once creases split the room into floor and walls, max_area_fraction 0.4 let a floor piece that an object leaked
+    into be flagged whole (38 % of a three_objects frame), hence 0.25. Tracking (before
     this frame's mask exists) leaves out the previous mask grown by predict_margin; a mask over more than
     max_total_fraction of the valid pixels is dropped (the frame gets none, the next starts afresh); score_threshold /
     score_ratio: a segment whose median |static-world residual|/σ(z) against the first lag reaches the
