@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 
 from tivne.config import RenderConfig, SamplerConfig
 
@@ -29,6 +30,16 @@ def draw(candidates: torch.Tensor, n: int, generator: torch.Generator | None = N
     return candidates[pick]
 
 
+def edge_band(mask: torch.Tensor, radius: int) -> torch.Tensor:
+    """(H, W) bool: the pixels within ``radius`` pixels (a square window) of both a True and a False
+    pixel of ``mask`` (H, W) bool, i.e. the band along its edges, on both sides; all False for radius 0."""
+    if radius <= 0:
+        return torch.zeros_like(mask, dtype=torch.bool)
+    k = 2 * radius + 1
+    near = F.max_pool2d(torch.stack([mask, ~mask]).float()[:, None], k, stride=1, padding=radius)[:, 0] > 0
+    return near[0] & near[1]
+
+
 @dataclass
 class PixelPool:
     """Flat indices of a frame's usable pixels, computed once and drawn from every iteration.
@@ -42,8 +53,11 @@ class PixelPool:
     static: torch.Tensor
 
     @classmethod
-    def from_masks(cls, valid: torch.Tensor, dynamic: torch.Tensor | None) -> "PixelPool":
-        """valid, dynamic: (H, W) bool."""
+    def from_masks(cls, valid: torch.Tensor, dynamic: torch.Tensor | None, edge: int = 0) -> "PixelPool":
+        """valid, dynamic: (H, W) bool; ``edge``: leave out the pixels within that many pixels of the
+        dynamic mask's edge (:func:`edge_band`)."""
+        if dynamic is not None and edge > 0:
+            valid = valid & ~edge_band(dynamic, edge)
         flat_valid = valid.reshape(-1)
         all_idx = flat_valid.nonzero()[:, 0]
         if dynamic is None:

@@ -11,6 +11,7 @@ from tivne.render.samplers import (
     PixelSampler,
     depth_guided_depths,
     draw,
+    edge_band,
     sample_from_mask,
 )
 
@@ -53,6 +54,30 @@ def test_pixel_pool_split_by_mask():
     assert pool.dynamic.numel() > 0
     no_mask = PixelPool.from_masks(valid, None)
     assert no_mask.dynamic.numel() == 0 and torch.equal(no_mask.static, no_mask.valid)
+
+
+def test_edge_band_is_the_ring_on_both_sides_of_the_mask_edge():
+    _, dynamic = masks()  # rows 2:6, columns 3:8
+    band = edge_band(dynamic, 1)
+    ring = torch.zeros_like(dynamic)
+    ring[1:7, 2:9] = True
+    ring[3:5, 4:7] = False  # the interior a pixel away from the edge
+    assert torch.equal(band, ring)
+    assert not edge_band(dynamic, 0).any()
+    assert not edge_band(torch.zeros_like(dynamic), 1).any() and not edge_band(torch.ones_like(dynamic), 1).any()
+    assert edge_band(dynamic, 2).sum() > band.sum() and bool((band & ~edge_band(dynamic, 2)).sum() == 0)
+
+
+def test_pixel_pool_leaves_out_the_mask_edge_band():
+    valid, dynamic = masks()
+    pool = PixelPool.from_masks(valid, dynamic, edge=1)
+    band = edge_band(dynamic, 1).reshape(-1)
+    kept = (valid.reshape(-1) & ~band).nonzero()[:, 0]
+    assert torch.equal(pool.valid, kept)
+    assert not band[pool.dynamic].any() and not band[pool.static].any()
+    assert dynamic.reshape(-1)[pool.dynamic].all() and pool.dynamic.numel() > 0  # the interior stays
+    assert torch.equal(PixelPool.from_masks(valid, dynamic, edge=0).valid, PixelPool.from_masks(valid, dynamic).valid)
+    assert torch.equal(PixelPool.from_masks(valid, None, edge=1).valid, valid.reshape(-1).nonzero()[:, 0])  # no mask: no band
 
 
 @pytest.mark.parametrize("share", [0.25, 0.5])

@@ -5,13 +5,13 @@ from __future__ import annotations
 import pytest
 import torch
 
-from tivne.config import LossWeights, MappingConfig, RenderConfig
+from tivne.config import LossWeights, MappingConfig, RenderConfig, SamplerConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.geometry import backproject_depth, invert_pose, se3_exp
 from tivne.render.losses import slam_loss
 from tivne.render.rays import View
 from tivne.render.renderer import render_pixels
-from tivne.render.samplers import PixelPool, PixelSampler, draw
+from tivne.render.samplers import PixelPool, PixelSampler, draw, edge_band
 from tivne.slam.mapping import Mapper, final_pass
 
 
@@ -57,6 +57,24 @@ def test_mapper_run_reduces_loss(frames):
     assert after < 0.5 * before, (before, after)
     assert stats["skipped_steps"] == 0 and {"total", "color", "depth", "free_space", "sdf", "offset"} <= set(stats)
     torch.testing.assert_close(poses, torch.eye(4)[None])
+
+
+def test_mapping_draws_no_ray_from_the_motion_mask_edge(frames):
+    v0, _, K, f0 = frames
+    assert v0.dynamic is not None and bool(v0.dynamic.any())
+    band = edge_band(v0.dynamic, 1).reshape(-1)
+    drawn: list[torch.Tensor] = []
+
+    class Recording(PixelSampler):
+        def __call__(self, pool, n, generator=None):
+            drawn.append(super().__call__(pool, n, generator))
+            return drawn[-1]
+
+    for edge in (1, 0):
+        drawn.clear()
+        sampler = Recording(SamplerConfig(dynamic_share=0.3, mask_edge=edge))
+        Mapper(make_field(f0, K), MappingConfig(rays=512), sampler, RenderConfig(), LossWeights()).run([v0], [True], 4, K, torch.Generator().manual_seed(0))
+        assert bool(band[torch.cat(drawn)].any()) == (edge == 0)  # 0: the band is drawn from like any pixel
 
 
 @pytest.mark.parametrize("threads", [1, None])
