@@ -307,12 +307,12 @@ class KeyframeConfig(Settings):
 class SamplerConfig(Settings):
     """Mapping's pixel sampler: dynamic_share of the rays from dynamic (masked) pixels; 0 = uniform, mask_weighted over-samples
     moving objects so the field learns them from the few pixels they cover. mask_edge: no ray from a pixel within this many pixels
-    of a motion mask's edge (either side), where a sensor's depth and colour mix the object with what lies behind it."""
+    of a motion mask's edge (either side), where depth and colour mix an object with what is behind it (0: off; 1 was mixed)."""
 
     section: ClassVar[str] = "sampler"
     name: str = "mask_weighted"
     dynamic_share: float = setting(0.3, ge=0, le=1)
-    mask_edge: int = setting(1, ge=0)
+    mask_edge: int = setting(0, ge=0)
 
 
 @dataclass(frozen=True)
