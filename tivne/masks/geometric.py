@@ -20,6 +20,7 @@ from tivne.masks.base import MaskContext, MaskProvider
 from tivne.masks.seeds import free_space_seeds, march_map_depth, residual_seeds
 from tivne.masks.segments import clean_mask
 from tivne.masks.settings import GeometricMasksConfig
+from tivne.morphology import dilate
 
 
 def upsample_mask(low: torch.Tensor, stride: int, like: torch.Tensor) -> torch.Tensor:
@@ -163,11 +164,7 @@ class GeometricMasks(MaskProvider):
         own mask exists. None before the first mask."""
         if self.previous is None:
             return None
-        low = torch.from_numpy(self.previous)[None, None].float()
-        r = self.predict_margin
-        if r > 0:
-            low = torch.nn.functional.max_pool2d(low, 2 * r + 1, stride=1, padding=r)
-        return upsample_mask(low[0, 0] > 0, self.stride, frame.depth)
+        return upsample_mask(dilate(torch.from_numpy(self.previous), self.predict_margin), self.stride, frame.depth)
 
     def revise(self, keyframes: list, current, K: torch.Tensor) -> dict[int, torch.Tensor]:
         """The static-world test backwards: a keyframe's points that the current frame sees as free

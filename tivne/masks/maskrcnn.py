@@ -18,6 +18,7 @@ import torch.nn.functional as F
 from data_modules.frame import DatasetError, Frame
 from tivne.masks.base import MaskContext, MaskProvider
 from tivne.masks.settings import MaskRCNNConfig
+from tivne.morphology import dilate
 
 COCO_DYNAMIC = (1, 2, 3, 4, 6, 8, 16, 17, 18, 19, 88)  # person … dog, horse, teddy bear
 INSTALL_HINT = "maskrcnn needs torchvision: pip install 'tivne[detect]'"
@@ -118,7 +119,5 @@ class MaskRCNNMasks(MaskProvider):
             image = F.interpolate(image[None], size=size, mode="bilinear", align_corners=False)[0]
         detections = self.model([image])[0]
         mask = detections_to_mask(detections, (h, w), self.classes, self.score_threshold, self.mask_threshold)
-        if self.dilate > 0:
-            k = 2 * self.dilate + 1
-            mask = F.max_pool2d(mask[None, None].float(), k, stride=1, padding=self.dilate)[0, 0] > 0
+        mask = dilate(mask, self.dilate)
         return mask.to(frame.depth.device)

@@ -6,9 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
 
 from tivne.config import RenderConfig, SamplerConfig
+from tivne.morphology import edge_band
 
 
 def sample_from_mask(mask: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -28,16 +28,6 @@ def draw(candidates: torch.Tensor, n: int, generator: torch.Generator | None = N
         return candidates[:0]
     pick = torch.randint(candidates.numel(), (n,), generator=generator).to(candidates.device)
     return candidates[pick]
-
-
-def edge_band(mask: torch.Tensor, radius: int) -> torch.Tensor:
-    """(H, W) bool: the pixels within ``radius`` pixels (a square window) of both a True and a False
-    pixel of ``mask`` (H, W) bool, i.e. the band along its edges, on both sides; all False for radius 0."""
-    if radius <= 0:
-        return torch.zeros_like(mask, dtype=torch.bool)
-    k = 2 * radius + 1
-    near = F.max_pool2d(torch.stack([mask, ~mask]).float()[:, None], k, stride=1, padding=radius)[:, 0] > 0
-    return near[0] & near[1]
 
 
 @dataclass

@@ -14,16 +14,7 @@ import torch.nn.functional as F
 
 from tivne.geometry import backproject_depth, project, transform_points
 from tivne.masks.segments import depth_segments
-
-
-def erode(mask: torch.Tensor, radius: int = 1) -> torch.Tensor:
-    """(H, W) bool minus a ``radius``-pixel band along its border: at an object's silhouette
-    colour and depth mix with the background."""
-    if radius <= 0:
-        return mask
-    k = 2 * radius + 1
-    outside = F.max_pool2d((~mask).float()[None, None], k, stride=1, padding=radius)[0, 0] > 0
-    return mask & ~outside
+from tivne.morphology import dilate
 
 
 def dataset_instances(ids: torch.Tensor, depth: torch.Tensor, min_pixels: int) -> dict[int, torch.Tensor]:
@@ -77,9 +68,7 @@ def projected_mask(points_world: torch.Tensor, T_wc: torch.Tensor, K: torch.Tens
     keep = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     out = torch.zeros(h, w, dtype=torch.bool, device=points_world.device)
     out[v[keep], u[keep]] = True
-    if radius > 0:
-        out = F.max_pool2d(out.float()[None, None], 2 * radius + 1, stride=1, padding=radius)[0, 0] > 0
-    return out
+    return dilate(out, radius)
 
 
 def touches_border(mask: torch.Tensor, margin: int = 2) -> bool:

@@ -30,9 +30,9 @@ from data_modules.poses import pose_on_track
 from data_modules.tables import write_tum_trajectory
 from tivne.config import ObjectsConfig, OdometryConfig
 from tivne.geometry import backproject_depth, invert_pose, orthonormalize_pose, transform_points
+from tivne.morphology import erode
 from tivne.slam.objects.instances import (
     dataset_instances,
-    erode,
     extent,
     greedy_match,
     iou,
