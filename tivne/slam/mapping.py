@@ -81,7 +81,8 @@ class Mapper:
     ) -> MapRound:
         """A mapping round on ``view`` (the current frame, tracked) and the keyframes ``policy`` picks;
         the first frame alone gets ``first_now`` of its ``first_iters`` steps with its pose fixed (it is
-        the world frame); the rounds after it run the rest, at most ``iters`` more each."""
+        the world frame); the rounds after it run the rest, at most ``iters`` more each. A frame with
+        moving pixels gets ``iters`` steps, one without ``static_iters``."""
         if first:
             views, fixed, iters = [view], [True], min(self.cfg.first_now, self.cfg.first_iters)
             self.owed = self.cfg.first_iters - iters
@@ -89,8 +90,9 @@ class Mapper:
             picked = policy.select(store, view, K, generator)
             views = [view] + [store.view(i) for i in picked]
             fixed = [False] + [v.frame_id == 0 for v in views[1:]]
-            extra = min(self.owed, self.cfg.iters)
-            iters, self.owed = self.cfg.iters + extra, self.owed - extra
+            base = self.cfg.iters if view.dynamic is not None and bool(view.dynamic.any()) else self.cfg.static_iters
+            extra = min(self.owed, base)
+            iters, self.owed = base + extra, self.owed - extra
         start = time.perf_counter()
         poses, terms = self.run(views, fixed, iters, K, generator, settle=not first and self.cfg.settle_share > 0)
         self.seconds += time.perf_counter() - start

@@ -219,3 +219,23 @@ def test_a_settling_round_stops_early_only_where_the_map_explains_the_frame(fram
     assert settled["steps"] == 3
     _, unsettled = mapper.run([v0], [True], 10, K, torch.Generator().manual_seed(2))  # settle off: every step
     assert unsettled["steps"] == 10 and mapper.steps == 10 + 60 + 3 + 10
+
+
+def test_a_frame_without_moving_pixels_gets_static_iters_steps(frames):
+    import dataclasses
+
+    from tivne.config import KeyframeConfig
+    from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
+
+    v0, v1, K, f0 = frames
+    assert v1.dynamic is not None and bool(v1.dynamic.any())  # the tiny cube moves in view
+    cfg = MappingConfig(rays=64, iters=4, static_iters=2, first_iters=0, first_now=0)
+    mapper = Mapper(make_field(f0, K), cfg, PixelSampler(), RenderConfig(), LossWeights())
+    store, policy, gen = KeyframeStore(KeyframeConfig()), KeyframePolicy(KeyframeConfig()), torch.Generator().manual_seed(0)
+    store.add(v0)
+    steps = []
+    for view in (v1, dataclasses.replace(v1, dynamic=None), dataclasses.replace(v1, dynamic=torch.zeros_like(v1.dynamic))):
+        before = mapper.steps
+        mapper.map_frame(view, store, policy, K, gen, first=False)
+        steps.append(mapper.steps - before)
+    assert steps == [cfg.iters, cfg.static_iters, cfg.static_iters]
