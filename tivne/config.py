@@ -242,11 +242,11 @@ class OdometryConfig(Settings):
 
 @dataclass(frozen=True)
 class MappingConfig(Settings):
-    """iters: steps per mapping round of a frame with moving pixels; static_iters: of a frame without (the static map
-    gathers over many frames, a moving object at each time has its own): both real tails at 3 instead of 5 ran 15-20 % faster
-    with the same ATE and PSNR -0.03 / +0.4 dB (the final pass, a share of the online steps, shrinks with them). first_iters: steps the first frame's map gets in all, first_now of them on the
-    first frame alone (so it returns in about a second), the rest added to the next rounds, at most iters more each; only with
-    ``tracking.method=odometry``, which does not read the map (a tracker that does gets all first_iters at once). rays per step,
+    """iters: steps per mapping round of a frame with moving pixels; static_iters: of a frame without (the static map gathers over
+    many frames, a moving object at each time has its own): both real tails at 3 instead of 5 ran 15-20 % faster, same ATE, PSNR
+    -0.03 / +0.4 dB (the final pass, a share of the online steps, shrinks with them). first_iters: steps the first frame's map gets
+    in all, first_now of them on the first frame alone (so it returns in about a second), the rest added to the next rounds, at most
+    iters more each; only with ``tracking.method=odometry``, which does not read the map (else all first_iters at once). rays per step,
     current_share of them from the current frame, the rest split over the picked keyframes. every:
     map every n-th frame. Every frame mapped (5 steps where objects move): each frame's track overlaps a mapping round
     (``tracking.overlap``); 5 instead of 10 steps took 30-55 % off s/frame (scene family, cube, real

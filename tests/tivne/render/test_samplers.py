@@ -6,12 +6,12 @@ import pytest
 import torch
 
 from tivne.config import SamplerConfig
+from tivne.morphology import edge_band
 from tivne.render.samplers import (
     PixelPool,
     PixelSampler,
     depth_guided_depths,
     draw,
-    edge_band,
     sample_from_mask,
 )
 

@@ -8,10 +8,11 @@ import torch
 from tivne.config import LossWeights, MappingConfig, RenderConfig, SamplerConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.geometry import backproject_depth, invert_pose, se3_exp
+from tivne.morphology import edge_band
 from tivne.render.losses import slam_loss
 from tivne.render.rays import View
 from tivne.render.renderer import render_pixels
-from tivne.render.samplers import PixelPool, PixelSampler, draw, edge_band
+from tivne.render.samplers import PixelPool, PixelSampler, draw
 from tivne.slam.mapping import Mapper, final_pass
 
 
