@@ -22,6 +22,24 @@ def test_depth_segments_split_object_from_background():
     assert len(set(inner[inner > 0].tolist())) == 1
 
 
+def test_holes_cut_a_small_object_s_rim_only_where_asked():
+    # A sensor shadow (no depth) along three sides of a 5x5 object. As a near side of a jump (hole_edges, the
+    # objects' own pixels) it cuts the object's rim off, 13 of 25 pixels left; without, all 25 stay one segment
+    # apart from the wall, and the motion mask (clean_mask) keeps the whole object.
+    obj = square(10, 10, 5)
+    depth = scene_depth(obj).numpy()
+    shadow = np.zeros_like(depth, dtype=bool)
+    shadow[9, 9:16] = shadow[10:15, 9] = shadow[15, 10:14] = True
+    depth[shadow] = 0.0
+    cut, _ = depth_segments(depth)
+    assert int((cut[obj.numpy()] > 0).sum()) == 13
+    labels, _ = depth_segments(depth, hole_edges=False)
+    inner = labels[obj.numpy()]
+    assert (inner > 0).all() and len(set(inner.tolist())) == 1
+    assert not np.isin(labels[~obj.numpy() & ~shadow], inner).any()
+    assert clean_mask(obj.numpy().copy(), depth, min_area=20)[obj.numpy()].all()
+
+
 def test_clean_mask_grows_seeds_drops_speckle_and_keeps_temporal():
     obj = square(10, 10, 14)
     depth = scene_depth(obj).numpy()
