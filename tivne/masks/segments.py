@@ -45,9 +45,9 @@ def depth_segments(
     resting on the floor or a door near it is depth-continuous with the room at the contact and
     would otherwise be one segment with the whole background. With ``hole_edges`` a valid pixel
     beside an invalid one (a sensor shadow, common along silhouettes) is an edge too: at full
-    resolution that costs an object one pixel of rim (the objects' own pixels,
-    :func:`tivne.slam.objects.instances.mask_segments`, keep it); at a motion mask's low resolution
-    the same rim is most of a small object (:func:`clean_mask` turns it off).
+    resolution that costs an object one pixel of rim (the objects' own pixels keep that rule,
+    :func:`tivne.slam.objects.instances.mask_segments`); at a motion mask's low resolution the same
+    rim is most of a small object (:func:`clean_mask` turns it off).
 
     Args:
         depth: (H, W) metres, 0 = invalid (never labelled).
