@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
-from tivne.config import LossWeights, MappingConfig, RenderConfig, SamplerConfig
+from tivne.config import KeyframeConfig, LossWeights, MappingConfig, RenderConfig, SamplerConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.geometry import backproject_depth, invert_pose, se3_exp
 from tivne.morphology import edge_band
@@ -13,6 +15,7 @@ from tivne.render.losses import slam_loss
 from tivne.render.rays import View
 from tivne.render.renderer import render_pixels
 from tivne.render.samplers import PixelPool, PixelSampler, draw
+from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
 from tivne.slam.mapping import Mapper, final_pass
 
 
@@ -176,9 +179,6 @@ def test_final_pass_revisits_every_view_in_windows_and_never_moves_poses(frames)
 
 
 def test_the_first_frame_runs_first_now_steps_and_the_next_rounds_the_rest(frames):
-    from tivne.config import KeyframeConfig
-    from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
-
     v0, v1, K, f0 = frames
     cfg = MappingConfig(rays=64, iters=4, first_iters=11, first_now=3)
     mapper = Mapper(make_field(f0, K), cfg, PixelSampler(), RenderConfig(), LossWeights())
@@ -223,11 +223,6 @@ def test_a_settling_round_stops_early_only_where_the_map_explains_the_frame(fram
 
 
 def test_a_frame_without_moving_pixels_gets_static_iters_steps(frames):
-    import dataclasses
-
-    from tivne.config import KeyframeConfig
-    from tivne.slam.keyframes import KeyframePolicy, KeyframeStore
-
     v0, v1, K, f0 = frames
     assert v1.dynamic is not None and bool(v1.dynamic.any())  # the tiny cube moves in view
     cfg = MappingConfig(rays=64, iters=4, static_iters=2, first_iters=0, first_now=0)

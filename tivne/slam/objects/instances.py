@@ -40,7 +40,7 @@ def mask_segments(dynamic: torch.Tensor, depth: torch.Tensor, min_pixels: int) -
 
     d = depth.detach().cpu().numpy()
     dyn = dynamic.detach().cpu().numpy() & (d > 0)
-    labels, n = depth_segments(d)
+    labels, n = depth_segments(d, hole_edges=True)  # at full resolution a hole costs one pixel of rim
     if n == 0 or not dyn.any():
         return []
     parts, m = ndimage.label(dyn & (labels > 0))
