@@ -42,7 +42,7 @@ def main() -> None:
     seconds, faces = [], []
     for t in times:
         start = time.perf_counter()
-        mesh = mesh_at(field, meta["clock"].tau(float(t)), cfg, camera_centres(meta), cache)
+        mesh = mesh_at(field, meta["clock"].tau(float(t)), cfg, camera_centres(meta), cache, meta["depth_views"])
         seconds.append(time.perf_counter() - start)
         faces.append(len(mesh.faces))
     kind = type(field).__name__

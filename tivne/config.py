@@ -317,16 +317,15 @@ class SamplerConfig(Settings):
 
 @dataclass(frozen=True)
 class MeshConfig(Settings):
-    """Meshes (train, ``tivne.mesh`` and ``tivne.evaluate`` share these keys). times: seconds on the
-    sequence clock (empty = the first and last frame); resolution: marching-cubes step in metres.
-    Observed space only (:class:`tivne.meshing.MeshCulling`): min_hits: voxels that held static depth
-    in >= n frames (0: also the unobserved dilation shell); dynamic_window: ... or where a moving
-    object was seen at the observations just before and just after the mesh time, each within this
-    many seconds (null: never; the union of a whole window would show its path); near_surface: drop
-    faces farther than one ``field.surface_cell`` from any observed static depth point, unless on a
-    moving object seen then (the field is unsupervised past the sampled band behind a surface and
-    makes surfaces up there, inside observed voxels); backfaces: drop faces no camera saw
-    from their free side (surfaces behind the supervised band)."""
+    """Meshes (train, ``tivne.mesh`` and ``tivne.evaluate`` share these keys). times: seconds on the sequence clock (empty = the
+    first and last frame); resolution: marching-cubes step in metres. Observed space only (:class:`tivne.meshing.MeshCulling`):
+    min_hits: voxels that held static depth in >= n frames (0: also the unobserved dilation shell); dynamic_window: ... or where a
+    moving object was seen at the observations just before and just after the mesh time, each within this many seconds (null:
+    never; the union of a whole window would show its path); near_surface: drop faces farther than one ``field.surface_cell`` from
+    any observed static depth point, unless on a moving object seen then (the field is unsupervised past the sampled band behind a
+    surface and makes surfaces up there, inside observed voxels); backfaces: drop faces no camera saw from their free side
+    (surfaces behind the supervised band). carve_window: ``field=objects``' static mesh at t loses the faces that the stored
+    keyframes within this many seconds of t see past (:func:`tivne.meshing.carve_free_space`; null: off)."""
 
     section: ClassVar[str] = "mesh"
     times: tuple[float, ...] = setting([])
@@ -335,6 +334,7 @@ class MeshConfig(Settings):
     dynamic_window: float | None = setting(0.2, ge=0)
     near_surface: bool = True
     backfaces: bool = True
+    carve_window: float | None = setting(0.25, ge=0)
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ def mesh_run(
     cache: dict = {}  # field=objects: the static field and rigid objects are meshed once
     for ts in select_mesh_times(meta["timestamps"], list(cfg.times) or None, every):
         tau = meta["clock"].tau(ts)
-        mesh = mesh_at(field, tau, cfg, camera_centres(meta), cache)
+        mesh = mesh_at(field, tau, cfg, camera_centres(meta), cache, meta["depth_views"])
         path = save_mesh(mesh, run.mesh_path(ts))
         written.append((ts, len(mesh.vertices), len(mesh.faces), path))
     return written

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,11 +23,14 @@ import trimesh
 from skimage import measure
 
 from data_modules.io import atomic_write
+from data_modules.sensor import kinect_depth_sigma
 from tivne.config import ConfigError, MeshConfig
 from tivne.field.lattice import Lattice, brick_inside, bricks_for_voxels, lattice_for_voxels, observed_space
 from tivne.field.networks import TimeVaryingField
 from tivne.field.objects import ObjectField, static_only
 from tivne.field.voxels import CORNER_OFFSETS
+from tivne.geometry import invert_pose
+from tivne.render.rays import View
 
 # Lattice points per batch of bricks: ~60 bytes of temporaries each (keys, volume, masks), ~120 MB.
 DEFAULT_SLAB_POINTS = 1 << 21
@@ -35,6 +39,9 @@ DEFAULT_SLAB_POINTS = 1 << 21
 DEFAULT_BRICK = 16
 # Mesh times may lie this far outside the recorded range (seconds); they are clamped to it.
 TIME_TOLERANCE_S = 1e-3
+# Free-space carving: beyond the depth noise (3σ(z)), a face must lie this far in front of what a frame
+# measured to count as seen past (two marching-cubes steps of 2 cm: the mesh's own quantisation).
+CARVE_MARGIN_M = 0.04
 
 
 def field_device(field: TimeVaryingField) -> torch.device:
@@ -298,15 +305,80 @@ def extract_mesh(
     return mesh if len(mesh.faces) else empty_mesh()
 
 
+@dataclass(frozen=True)
+class DepthViews:
+    """Depth frames a mesh is checked against (:func:`carve_free_space`): a run's stored keyframes
+    (field time, depth, c2w pose) and the (3, 3) intrinsics of their depth."""
+
+    views: Sequence[View]
+    K: torch.Tensor
+
+    def near(self, tau: float, window: float) -> list[View]:
+        """The views within ``window`` (field time) of τ."""
+        return [v for v in self.views if abs(float(v.tau) - float(tau)) <= window]
+
+
+def free_space_votes(
+    points: torch.Tensor, depth: torch.Tensor, c2w: torch.Tensor, K: torch.Tensor, margin: float = CARVE_MARGIN_M
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """What one depth frame says about world points (N, 3): (N,) bool ``past``, it sees past the point
+    (the nearest valid depth in the point's 3x3 pixel neighbourhood lies more than 3σ(z) + ``margin``
+    behind it: free space there at that time; the nearest of the neighbourhood keeps a silhouette
+    from seeing past the surface it bounds), and (N,) bool ``seen``, its depth there lies within
+    3σ(z) + ``margin`` of the point. Points behind the camera, off the image or behind what it
+    measured count as neither. depth: (H, W) metres, 0 = invalid; c2w: (4, 4); K: (3, 3)."""
+    w2c = invert_pose(c2w.double())
+    cam = (points.double() @ w2c[:3, :3].T + w2c[:3, 3]).float()  # the pose in float64, the rest in float32 (millimetres)
+    z = cam[:, 2]
+    uv = cam @ K.float().T
+    u = (uv[:, 0] / z.clamp_min(1e-6)).round().long()
+    v = (uv[:, 1] / z.clamp_min(1e-6)).round().long()
+    H, W = depth.shape
+    inside = (z > 0) & (u >= 0) & (v >= 0) & (u < W) & (v < H)
+    flat = v.clamp(0, H - 1) * W + u.clamp(0, W - 1)
+    d = depth.float()
+    far = torch.where(d > 0, d, torch.full_like(d, float("inf")))
+    nearest = -torch.nn.functional.max_pool2d(-far[None, None], 3, 1, 1).reshape(-1)[flat]
+    measured = d.reshape(-1)[flat]
+    tolerance = 3.0 * kinect_depth_sigma(z.clamp_min(0.0)) + margin
+    past = inside & torch.isfinite(nearest) & (nearest > z + tolerance)
+    seen = inside & (measured > 0) & ((measured - z).abs() <= tolerance)
+    return past, seen
+
+
+def carve_free_space(
+    mesh: trimesh.Trimesh, observations: Sequence[tuple[torch.Tensor, torch.Tensor]], K: torch.Tensor, margin: float = CARVE_MARGIN_M
+) -> trimesh.Trimesh:
+    """``mesh`` without the faces that the depth frames ``observations`` ((H, W) depth, (4, 4) pose of
+    the camera in the mesh's frame) see past (:func:`free_space_votes` at the face centres) more often
+    than they see them: a surface the frames around the mesh time look through is not there at that
+    time (a moving object the static map took in, where it used to be; a floater). Faces no frame
+    sees stay."""
+    if len(mesh.faces) == 0 or not observations:
+        return mesh
+    centres = torch.from_numpy(np.array(mesh.triangles_center, dtype=np.float64))
+    past = torch.zeros(len(centres), dtype=torch.int32)
+    seen = torch.zeros_like(past)
+    for depth, pose in observations:
+        p, s = free_space_votes(centres, depth.cpu(), pose.detach().cpu(), K.cpu(), margin)
+        past += p.int()
+        seen += s.int()
+    return keep_faces(mesh, ((past == 0) | (past <= seen)).numpy())
+
+
 def mesh_at(
-    field: TimeVaryingField, tau: float, cfg: MeshConfig, camera_centres: np.ndarray | None = None, cache: dict | None = None
+    field: TimeVaryingField, tau: float, cfg: MeshConfig, camera_centres: np.ndarray | None = None, cache: dict | None = None,
+    depth_views: DepthViews | None = None,
 ) -> trimesh.Trimesh:
     """The scene's mesh at τ with ``cfg``'s resolution and culling (:func:`extract_mesh`).
 
     For an :class:`ObjectField`: the static field's mesh (meshed once into ``cache`` when the
     static field has no time) plus, for each object observed within its window of τ, the object
     field's mesh in its own frame (at ``field.mesh_resolution``; cached too when it has no time)
-    placed by T_wo(τ) -- no sweep trails by construction.
+    placed by T_wo(τ) -- no sweep trails by construction. The static mesh without what the
+    ``depth_views`` within ``cfg.carve_window`` of τ see past (:func:`carve_free_space`): the static
+    scene is the same at every time, so what a frame near τ sees through is not there at τ. The
+    objects' meshes are not carved: a deforming object differs between the frames' times and τ.
     """
     if not isinstance(field, ObjectField):
         return extract_mesh(field, tau, cfg.resolution, culling=cfg, camera_centres=camera_centres)
@@ -315,7 +387,8 @@ def mesh_at(
     if key not in cache:
         with static_only(field):
             cache[key] = extract_mesh(field, tau, cfg.resolution, culling=cfg, camera_centres=camera_centres)
-    parts = [cache[key]]
+    near = [] if depth_views is None or cfg.carve_window is None else depth_views.near(tau, cfg.carve_window * field.time_scale)
+    parts = [carve_free_space(cache[key], [(v.depth, v.pose) for v in near], depth_views.K) if near else cache[key]]
     own = MeshConfig(resolution=field.mesh_resolution, min_hits=cfg.min_hits, dynamic_window=None, near_surface=cfg.near_surface,
                      backfaces=False)  # cameras see an object from every side of its own frame
     for object_id, slot in field.slots.items():

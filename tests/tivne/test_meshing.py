@@ -16,7 +16,8 @@ from tivne.field.networks import FieldOutputs, TimeVaryingField
 from tivne.field.objects import ObjectField, ObjectSlot
 from tivne.field.voxels import unpack_keys
 from tivne.mesh import mesh_run, select_mesh_times
-from tivne.meshing import cull_backfaces, extract_mesh, mesh_at, save_mesh
+from tivne.meshing import DepthViews, carve_free_space, cull_backfaces, extract_mesh, free_space_votes, mesh_at, save_mesh
+from tivne.render.rays import View
 from tivne.slam.checkpoint import save_checkpoint
 
 RADIUS = 0.3
@@ -54,13 +55,14 @@ def field_kwargs(time: bool) -> dict:
     return dict(time=time, voxel_size=0.1, embed_dim=4, capacity=64, hidden_dim=8, num_hidden=3, time_frequencies=1, surface_cell=0.0)
 
 
-def embedded_sphere(time: bool) -> TimeVaryingField:
-    """A real TimeVaryingField set by hand so that SDF = trilinear interpolation of the sphere's SDF.
+def embedded_sphere(time: bool, field: TimeVaryingField | None = None) -> TimeVaryingField:
+    """A real TimeVaryingField (``field``, default a new one) set by hand so that SDF = trilinear
+    interpolation of the sphere's SDF.
 
     Embedding column 0 holds the corner SDF; the canonical MLP passes it through as relu(e0) - relu(-e0)
     and the colour head outputs the constant COLOUR. Θd stays zero-initialised (Δe = 0).
     """
-    field = TimeVaryingField(**field_kwargs(time))
+    field = TimeVaryingField(**field_kwargs(time)) if field is None else field
     grid = field.grid
     grid.allocate(sphere_surface(), dilation=1)
     with torch.no_grad():
@@ -383,3 +385,86 @@ def test_a_mesh_at_t_places_the_object_at_its_pose_and_meshes_it_once():
         assert len(mesh.faces) > 500 and np.abs(r - RADIUS).max() < 0.01
     assert sorted(k for k in cache if k[0] != "static") == [(1, None)]  # a rigid object is meshed once
     assert len(mesh_at(field, 3.0, cfg, cache=cache).faces) == 0  # not observed around τ = 3: not placed
+
+
+FOCAL = 20.0
+CAMERA_K = torch.tensor([[FOCAL, 0.0, 32.0], [0.0, FOCAL, 24.0], [0.0, 0.0, 1.0]])
+
+
+def sphere_depth(centre: tuple[float, float, float], radius: float = RADIUS, far: float = 5.0) -> torch.Tensor:
+    """(48, 64) z-depth of a sphere in front of a wall at ``far``, camera at the origin looking down +z (CAMERA_K)."""
+    v, u = torch.meshgrid(torch.arange(48.0), torch.arange(64.0), indexing="ij")
+    d = torch.stack([(u - 32.0) / FOCAL, (v - 24.0) / FOCAL, torch.ones_like(u)], -1).double()
+    c = torch.tensor(centre, dtype=torch.float64)
+    b, cc = (d @ c) / (d * d).sum(-1), (c @ c - radius**2) / (d * d).sum(-1)
+    disc = b * b - cc
+    hit = torch.where(disc >= 0, b - disc.clamp_min(0).sqrt(), torch.full_like(b, far))
+    return hit.clamp(max=far).float()
+
+
+def test_free_space_votes_see_past_what_lies_in_front_and_see_what_lies_on_the_surface():
+    depth = torch.full((48, 64), 2.0)
+    points = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 2.01], [0.0, 0.0, 3.0], [10.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
+    past, seen = free_space_votes(points, depth, torch.eye(4), CAMERA_K)
+    assert past.tolist() == [True, False, False, False, False]
+    assert seen.tolist() == [False, True, False, False, False]
+    depth[:, :] = 0.0  # no measurement: no vote either way
+    past, seen = free_space_votes(points, depth, torch.eye(4), CAMERA_K)
+    assert not past.any() and not seen.any()
+
+
+def test_a_silhouette_never_sees_past_the_surface_it_bounds():
+    depth = torch.full((48, 64), 3.0)
+    depth[:, :32] = 1.0  # a foreground surface over the left half
+    at_edge = torch.tensor([[(32.0 - 32.0) / FOCAL, 0.0, 1.0]])  # column 32: the first background pixel, beside the edge
+    further = torch.tensor([[(37.0 - 32.0) / FOCAL, 0.0, 1.0]])
+    assert not free_space_votes(at_edge, depth, torch.eye(4), CAMERA_K)[0].any()
+    assert free_space_votes(further, depth, torch.eye(4), CAMERA_K)[0].all()
+
+
+def test_carving_removes_a_floater_in_front_of_the_wall_and_keeps_the_wall():
+    wall = trimesh.creation.box(extents=(0.6, 0.6, 0.02))
+    wall.apply_translation((0.0, 0.0, 2.0))
+    floater = trimesh.creation.box(extents=(0.2, 0.2, 0.02))
+    floater.apply_translation((0.0, 0.0, 1.0))
+    mesh = trimesh.util.concatenate([wall, floater])
+    depth = torch.full((48, 64), 1.99)  # the wall's near face
+    carved = carve_free_space(mesh, [(depth, torch.eye(4))], CAMERA_K)
+    z = np.asarray(carved.triangles_center)[:, 2]
+    assert (z > 1.5).sum() == len(wall.faces) and (z < 1.5).sum() == 0
+    # a second frame that sees the floater as surface: one vote each way, kept
+    seen = depth.clone()
+    seen[20:29, 27:38] = 0.99
+    assert len(carve_free_space(mesh, [(depth, torch.eye(4)), (seen, torch.eye(4))], CAMERA_K).faces) == len(mesh.faces)
+
+
+def test_a_mesh_at_t_drops_the_static_surface_its_frames_see_through_and_leaves_the_objects():
+    # the static field: a sphere at the origin; the cameras stand 1 m back on -z, looking down +z
+    field = embedded_sphere(False, ObjectField(FieldConfig(), window=0.1, mesh_resolution=0.02, **field_kwargs(False)))
+    cfg = MeshConfig(resolution=0.02, min_hits=0, near_surface=False, backfaces=False, carve_window=0.25)
+    back = torch.eye(4)
+    back[2, 3] = -1.0
+
+    def views(depth: torch.Tensor, taus=(0.4, 0.6)) -> DepthViews:
+        return DepthViews([View(i, t, torch.zeros(48, 64, 3), depth, None, back) for i, t in enumerate(taus)], CAMERA_K)
+
+    whole = mesh_at(field, 0.5, cfg)
+    assert len(whole.faces) > 500
+    seen = mesh_at(field, 0.5, cfg, depth_views=views(sphere_depth((0.0, 0.0, 1.0))))
+    assert len(seen.faces) == len(whole.faces)  # the frames see the sphere: every face stays
+    through = mesh_at(field, 0.5, cfg, depth_views=views(torch.full((48, 64), 5.0)))
+    assert len(through.faces) < 0.1 * len(whole.faces)  # they see the wall behind where it is: it was not there then
+    # frames outside the window say nothing about τ = 0.5; carve_window=null turns carving off
+    assert len(mesh_at(field, 0.5, cfg, depth_views=views(torch.full((48, 64), 5.0), taus=(1.5,))).faces) == len(whole.faces)
+    off = MeshConfig(resolution=0.02, min_hits=0, near_surface=False, backfaces=False, carve_window=None)
+    assert len(mesh_at(field, 0.5, off, depth_views=views(torch.full((48, 64), 5.0))).faces) == len(whole.faces)
+
+
+def test_a_mesh_at_t_does_not_carve_the_objects():
+    # a deforming object's mesh at τ differs from what the frames around τ saw at their own times
+    field = ObjectField(FieldConfig(), window=0.1, mesh_resolution=0.02, time=False, voxel_size=0.1, capacity=64)
+    field.set_tracks({1: MovingTrack()})
+    field.slots[1] = ObjectSlot(analytic_sphere(), tau0=0.0)
+    cfg = MeshConfig(resolution=0.02, min_hits=0, near_surface=False, backfaces=False, carve_window=0.25)
+    empty = DepthViews([View(0, 0.5, torch.zeros(48, 64, 3), torch.full((48, 64), 5.0), None, torch.eye(4))], CAMERA_K)
+    assert len(mesh_at(field, 0.5, cfg, depth_views=empty).faces) == len(mesh_at(field, 0.5, cfg).faces)

@@ -177,7 +177,7 @@ def run_meshes(
             meshes[t] = loaded if isinstance(loaded, trimesh.Trimesh) else trimesh.Trimesh()
         elif record.field is not None:
             tau = record.meta["clock"].tau(t)
-            meshes[t] = mesh_at(record.field, tau, mesh, camera_centres(record.meta), cache)
+            meshes[t] = mesh_at(record.field, tau, mesh, camera_centres(record.meta), cache, record.meta["depth_views"])
     missing = [t for t in times if t not in meshes]
     reason = f"no mesh file and no checkpoint ({RunDir.CHECKPOINT}) for t={missing}" if missing else None
     return meshes, reason

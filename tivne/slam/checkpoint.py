@@ -28,6 +28,8 @@ from tivne.config import ConfigError, FieldConfig
 from tivne.field.clock import Clock
 from tivne.field.networks import TimeVaryingField
 from tivne.field.object_state import restore_objects
+from tivne.meshing import DepthViews
+from tivne.slam.keyframes import view_from_state
 from tivne.slam.outputs import RunDirError, config_differences, describe_differences
 
 # 1: field + trajectory; 2: + the resume state and the run's config; 3: the field's config section
@@ -118,7 +120,19 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
     field.to(device).eval()
     meta = {k: v for k, v in payload.items() if k not in ("field_state", "resume")}
     meta["clock"] = Clock.from_state(payload["clock"])
+    meta["depth_views"] = stored_depth_views(payload)
     return field, meta
+
+
+def stored_depth_views(payload: dict[str, Any]) -> DepthViews | None:
+    """The keyframes a resumable checkpoint holds, with their depth intrinsics, for carving meshes
+    (:func:`tivne.meshing.carve_free_space`); None for a checkpoint without them (not resumable, or
+    written before the intrinsics were saved)."""
+    resume, K = payload.get("resume"), (payload.get("extra") or {}).get("K")
+    views = ((resume or {}).get("keyframes") or {}).get("views")
+    if K is None or not views:
+        return None
+    return DepthViews([view_from_state(v) for v in views], torch.as_tensor(K))
 
 
 def camera_centres(meta: dict[str, Any]) -> np.ndarray:

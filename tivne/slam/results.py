@@ -10,7 +10,7 @@ from typing import Any
 
 from tivne.config import MeshConfig, OutputConfig
 from tivne.field.object_state import objects_payload
-from tivne.meshing import mesh_at, save_mesh, select_mesh_times
+from tivne.meshing import DepthViews, mesh_at, save_mesh, select_mesh_times
 from tivne.render.rays import View
 from tivne.render.renderer import render_image
 from tivne.slam.checkpoint import global_rng_state, save_checkpoint
@@ -63,7 +63,8 @@ class RunWriter:
         resume = (loop.state_dict() | {"rng": global_rng_state()}) if resumable else None
         return save_checkpoint(
             self.run.checkpoint, loop.field, loop.trajectory.timestamps(), loop.poses.all(), loop.clock,
-            extra={"keyframes": loop.keyframes.frame_ids(), **objects_payload(loop.field)}, resume=resume, config=self.run_config,
+            extra={"keyframes": loop.keyframes.frame_ids(), "K": loop.K.detach().cpu(), **objects_payload(loop.field)}, resume=resume,
+            config=self.run_config,
         )
 
     def finish(self, loop: SlamLoop, tensorboard: Any = None) -> dict[str, Any]:
@@ -110,8 +111,9 @@ class RunWriter:
         centres = loop.poses.all()[:, :3, 3].numpy()
         result: dict[str, Any] = {}
         cache: dict = {}  # field=objects: the static field and rigid objects are meshed once
+        depth_views = DepthViews(loop.keyframes.views(), loop.K)
         for ts in times:
-            mesh = mesh_at(loop.field, loop.clock.tau(ts), self.mesh, centres, cache)
+            mesh = mesh_at(loop.field, loop.clock.tau(ts), self.mesh, centres, cache, depth_views)
             save_mesh(mesh, self.run.mesh_path(ts))
             self.observer.on_mesh(ts, mesh)
             result[f"mesh_t{ts:.3f}_faces"] = int(len(mesh.faces))

@@ -92,7 +92,8 @@ def record_run(
     _log_frames(rec, ts, poses, gt_ts, gt_poses, to_slam, view, set(mesh_frames), cfg.trajectory_every)
     written, cache = [], {}  # mesh_at: with field=objects the static field and each object meshed once, objects placed per time
     for i, t in sorted(mesh_frames.items()):
-        m = mesh_at(record.field, record.meta["clock"].tau(t), mesh, camera_centres=camera_centres(record.meta), cache=cache)
+        m = mesh_at(record.field, record.meta["clock"].tau(t), mesh, camera_centres=camera_centres(record.meta), cache=cache,
+                        depth_views=record.meta["depth_views"])
         E.set_time(rec, i, t - float(ts[0]))
         E.log_mesh(rec, m)
         written.append((float(t), int(len(m.faces))))

@@ -13,7 +13,9 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from data_modules.frame import DatasetError
-from tivne.slam.checkpoint import load_checkpoint, read_checkpoint
+from tivne.render.rays import View
+from tivne.slam.checkpoint import load_checkpoint, read_checkpoint, stored_depth_views
+from tivne.slam.keyframes import view_state
 from tivne.slam.outputs import RunDirError
 from tivne.slam.run import build_system, run
 
@@ -108,10 +110,13 @@ def test_unreadable_checkpoints_are_one_line(tmp_path, tiny_cube):
     field, meta = load_checkpoint(good)  # mesh and evaluate read it
     assert meta["timestamps"] == [0.0] and "resume" not in meta and field.grid.num_voxels > 0
     assert meta["clock"] == system.loop.clock and field.cfg == system.loop.field.cfg  # one source of τ and of the field's settings
+    assert meta["depth_views"] is None  # not resumable: no keyframes to carve meshes with
     from tivne.slam.checkpoint import check_resumable
 
     with pytest.raises(RunDirError, match="holds no resume state"):
         check_resumable(good)
+    _, meta = load_checkpoint(system.writer.save_checkpoint(system.loop))  # resumable: its keyframes carve the meshes
+    assert [v.frame_id for v in meta["depth_views"].views] == [0] and torch.equal(meta["depth_views"].K, system.loop.K.cpu())
     payload = torch.load(good, weights_only=True)
     torch.save(payload | {"format": 2}, tmp_path / "old.pt")
     with pytest.raises(DatasetError, match="written by another version of TivNe .checkpoint format 2"):
@@ -167,3 +172,13 @@ def test_a_restored_object_field_run_continues_on_its_tracks(tmp_path, tiny_cube
     assert max(apart) < 2e-3, apart
     n, m = r.field.slots[1].field.grid.num_voxels, w.field.slots[1].field.grid.num_voxels
     assert abs(n - m) <= 0.05 * m, (n, m)  # its voxels: where the (slightly different) poses put its depth
+
+
+def test_a_resumable_checkpoint_hands_its_keyframes_to_mesh_carving_and_an_old_one_nothing():
+    view = View(3, 0.1, torch.zeros(4, 5, 3, dtype=torch.uint8), torch.full((4, 5), 2.0), None, torch.eye(4))
+    K = torch.tensor([[5.0, 0.0, 2.0], [0.0, 5.0, 2.0], [0.0, 0.0, 1.0]])
+    payload = {"extra": {"K": K}, "resume": {"keyframes": {"views": [view_state(view)]}}}
+    stored = stored_depth_views(payload)
+    assert [v.frame_id for v in stored.views] == [3] and torch.equal(stored.views[0].depth, view.depth) and torch.equal(stored.K, K)
+    assert stored_depth_views({"extra": {}, "resume": payload["resume"]}) is None  # written before the intrinsics were kept
+    assert stored_depth_views({"extra": {"K": K}, "resume": None}) is None  # not resumable: no keyframes
