@@ -91,6 +91,31 @@ def project(points: torch.Tensor, K: torch.Tensor, eps: float = 1e-8) -> tuple[t
     return torch.stack([u, v], dim=-1), z
 
 
+def depth_lookup(
+    points: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, min_z: float = 1e-3
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Where camera-frame points fall in a depth image, and what it measured there.
+
+    Args:
+        points: (N, 3) in the depth camera's frame. depth: (H, W) metres, 0 = invalid. K: (3, 3).
+    Returns:
+        z (N,) the points' depth; inside (N,) bool: in front of the camera (z > min_z) and on the
+        image (nearest pixel); nearest (N,) the smallest valid depth among the 3x3 pixels around each
+        (inf where none, or not inside): a silhouette's depth covers its neighbours, so a point
+        beside an edge is not taken for seen past; centre (N,) the depth at its own pixel (0 where
+        invalid, or not inside).
+    """
+    uv, z = project(points, K, eps=min_z)
+    u, v = torch.round(uv).long().unbind(-1)
+    h, w = depth.shape
+    inside = (z > min_z) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    flat = v.clamp(0, h - 1) * w + u.clamp(0, w - 1)
+    far = torch.where(depth > 0, depth, torch.full_like(depth, float("inf")))
+    nearest = -torch.nn.functional.max_pool2d(-far[None, None], 3, stride=1, padding=1).reshape(-1)[flat]
+    centre = depth.reshape(-1)[flat]
+    return z, inside, torch.where(inside, nearest, torch.full_like(nearest, float("inf"))), torch.where(inside, centre, 0.0)
+
+
 def transform_points(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Apply rigid transform(s) to points.
 

@@ -29,7 +29,7 @@ from tivne.field.lattice import Lattice, brick_inside, bricks_for_voxels, lattic
 from tivne.field.networks import TimeVaryingField
 from tivne.field.objects import ObjectField, static_only
 from tivne.field.voxels import CORNER_OFFSETS
-from tivne.geometry import invert_pose
+from tivne.geometry import depth_lookup, invert_pose, transform_points
 from tivne.render.rays import View
 
 # Lattice points per batch of bricks: ~60 bytes of temporaries each (keys, volume, masks), ~120 MB.
@@ -327,19 +327,8 @@ def free_space_votes(
     from seeing past the surface it bounds), and (N,) bool ``seen``, its depth there lies within
     3σ(z) + ``margin`` of the point. Points behind the camera, off the image or behind what it
     measured count as neither. depth: (H, W) metres, 0 = invalid; c2w: (4, 4); K: (3, 3)."""
-    w2c = invert_pose(c2w.double())
-    cam = (points.double() @ w2c[:3, :3].T + w2c[:3, 3]).float()  # the pose in float64, the rest in float32 (millimetres)
-    z = cam[:, 2]
-    uv = cam @ K.float().T
-    u = (uv[:, 0] / z.clamp_min(1e-6)).round().long()
-    v = (uv[:, 1] / z.clamp_min(1e-6)).round().long()
-    H, W = depth.shape
-    inside = (z > 0) & (u >= 0) & (v >= 0) & (u < W) & (v < H)
-    flat = v.clamp(0, H - 1) * W + u.clamp(0, W - 1)
-    d = depth.float()
-    far = torch.where(d > 0, d, torch.full_like(d, float("inf")))
-    nearest = -torch.nn.functional.max_pool2d(-far[None, None], 3, 1, 1).reshape(-1)[flat]
-    measured = d.reshape(-1)[flat]
+    cam = transform_points(invert_pose(c2w.double()), points.double()).float()  # the pose in float64, the rest in float32
+    z, inside, nearest, measured = depth_lookup(cam, depth.float(), K.float())
     tolerance = 3.0 * kinect_depth_sigma(z.clamp_min(0.0)) + margin
     past = inside & torch.isfinite(nearest) & (nearest > z + tolerance)
     seen = inside & (measured > 0) & ((measured - z).abs() <= tolerance)

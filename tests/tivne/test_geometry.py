@@ -219,3 +219,17 @@ def test_eigen_range_of_an_information_matrix_and_of_a_degenerate_one():
     bad[0, 0] = float("nan")  # an alignment whose linearisation went non-finite: no pose information
     assert G.eigen_range(bad) == (0.0, 0.0)
     assert G.eigen_range(torch.full((6, 6), float("inf"), dtype=torch.float64)) == (0.0, 0.0)
+
+
+def test_depth_lookup_gives_each_point_its_pixel_and_the_nearest_depth_around_it():
+    depth = torch.full((4, 6), 3.0)
+    depth[:, :2] = 1.0  # a near surface over the first two columns
+    depth[0, 5] = 0.0  # a hole
+    K = torch.tensor([[2.0, 0.0, 2.0], [0.0, 2.0, 1.0], [0.0, 0.0, 1.0]])
+    # pixels (u, v) = (2, 1): beside the near surface; (4, 1): inside the far one; (5, 0): the hole; off the image; behind
+    points = torch.tensor([[0.0, 0.0, 2.0], [2.0, 0.0, 2.0], [3.0, -1.0, 2.0], [9.0, 0.0, 2.0], [0.0, 0.0, -1.0]])
+    z, inside, nearest, centre = G.depth_lookup(points, depth, K)
+    assert z.tolist() == [2.0, 2.0, 2.0, 2.0, -1.0]
+    assert inside.tolist() == [True, True, True, False, False]
+    assert nearest[:3].tolist() == [1.0, 3.0, 3.0] and torch.isinf(nearest[3:]).all()
+    assert centre.tolist() == [3.0, 3.0, 0.0, 0.0, 0.0]

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from data_modules.sensor import kinect_depth_sigma
-from tivne.geometry import backproject, pixel_grid, project, transform_points
+from tivne.geometry import backproject, depth_lookup, pixel_grid, transform_points
 from tivne.render.rays import rays_from_pixels
 
 
@@ -75,18 +75,10 @@ def free_space_seeds(
     # The grid in K's dtype: the points come out in the dtype K and depth promote to.
     cam = backproject(pixel_grid(h, w, depth.device, K.dtype), depth, K).reshape(-1, 3)
     rel = torch.linalg.solve(ref_pose.to(cam.dtype), pose.to(cam.dtype))  # current camera -> reference camera
-    uv, z = project(transform_points(rel, cam), K, eps=1e-6)
-    ur, vr = torch.round(uv).long().unbind(-1)
-    inb = (z > 1e-3) & (ur >= 0) & (ur < w) & (vr >= 0) & (vr < h)
-    inf = torch.where(ref_depth > 0, ref_depth, torch.full_like(ref_depth, float("inf")))
-    dmin = -torch.nn.functional.max_pool2d(-inf[None, None], 3, stride=1, padding=1)[0, 0]
-    d_ref = torch.zeros_like(z)
-    d_ref[inb] = dmin[vr[inb], ur[inb]]
+    z, inb, d_ref, d_centre = depth_lookup(transform_points(rel, cam), ref_depth.to(cam.dtype), K)
     known = inb & torch.isfinite(d_ref) & (depth.reshape(-1) > 0)
     thr = torch.clamp(k_sigma * kinect_depth_sigma(d_ref.clamp(max=20.0)), min=abs_threshold)
     seeds = known & (z < d_ref - thr)
-    d_centre = torch.zeros_like(z)
-    d_centre[inb] = ref_depth[vr[inb], ur[inb]]
     scored = known & (d_centre > 0)
     residual = torch.full_like(z, float("nan"))
     residual[scored] = (z[scored] - d_centre[scored]) / kinect_depth_sigma(d_centre[scored])
