@@ -348,8 +348,9 @@ def carve_free_space(
     centres = torch.from_numpy(np.array(mesh.triangles_center, dtype=np.float64))
     past = torch.zeros(len(centres), dtype=torch.int32)
     seen = torch.zeros_like(past)
+    K = K.cpu()
     for depth, pose in observations:
-        p, s = free_space_votes(centres, depth.cpu(), pose.detach().cpu(), K.cpu(), margin)
+        p, s = free_space_votes(centres, depth.cpu(), pose.detach().cpu(), K, margin)
         past += p.int()
         seen += s.int()
     return keep_faces(mesh, ((past == 0) | (past <= seen)).numpy())

@@ -14,7 +14,7 @@ from hydra import compose, initialize_config_dir
 
 from data_modules.frame import DatasetError
 from tivne.render.rays import View
-from tivne.slam.checkpoint import load_checkpoint, read_checkpoint, stored_depth_views
+from tivne.slam.checkpoint import check_resumable, load_checkpoint, read_checkpoint, stored_depth_views
 from tivne.slam.keyframes import view_state
 from tivne.slam.outputs import RunDirError
 from tivne.slam.run import build_system, run
@@ -111,8 +111,6 @@ def test_unreadable_checkpoints_are_one_line(tmp_path, tiny_cube):
     assert meta["timestamps"] == [0.0] and "resume" not in meta and field.grid.num_voxels > 0
     assert meta["clock"] == system.loop.clock and field.cfg == system.loop.field.cfg  # one source of τ and of the field's settings
     assert meta["depth_views"] is None  # not resumable: no keyframes to carve meshes with
-    from tivne.slam.checkpoint import check_resumable
-
     with pytest.raises(RunDirError, match="holds no resume state"):
         check_resumable(good)
     _, meta = load_checkpoint(system.writer.save_checkpoint(system.loop))  # resumable: its keyframes carve the meshes
