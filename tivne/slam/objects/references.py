@@ -56,6 +56,25 @@ def pick_reference(references: list[Reference], C_pred: torch.Tensor, max_angle_
     return references[max(range(len(references)), key=lambda i: (float(cosines[i]), i))]
 
 
+def centring_view(references: list[Reference], C_pred: torch.Tensor, pixels: int, max_angle_deg: float) -> Reference:
+    """The stored view to centre an object seen again on (:func:`centred_on`) and to align it to: of
+    those that saw it from within ``max_angle_deg`` of the predicted view C_pred (4, 4) and from a
+    distance within 25 %, the one that showed about as much of it as the ``pixels`` seen now (scaled
+    to the distance), else :func:`pick_reference`'s. Where a side's centre lies depends on how much
+    of the side is seen, so a view cut by an occluder centres a whole one off by up to half the
+    object, and a whole view overlaps it too little to be aligned to it."""
+    cosines, same_distance = _seen_alike(references, C_pred)
+    near = ((cosines >= float(np.cos(np.radians(max_angle_deg)))) & same_distance).nonzero().flatten().tolist()
+    if not near:
+        return pick_reference(references, C_pred, max_angle_deg)
+    dist = float(C_pred[:3, 3].norm())
+
+    def mismatch(ref: Reference) -> float:  # |log| of the ratio of what the view showed to what is seen now
+        return abs(math.log(max(ref.pixels * (float(ref.C[:3, 3].norm()) / max(dist, 1e-9)) ** 2, 1.0) / max(pixels, 1)))
+
+    return min((references[i] for i in near), key=mismatch)
+
+
 def companions(references: list[Reference], ref: Reference, C_pred: torch.Tensor, max_angle_deg: float, count: int) -> list[Reference]:
     """Up to ``count`` stored views besides ``ref`` that also saw the object from within
     ``max_angle_deg`` of the predicted view C_pred (4, 4) and from a distance within 25 %, nearest

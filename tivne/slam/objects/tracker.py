@@ -6,12 +6,11 @@ coarse to fine) on that object's pixels only, against the object's own keyframe 
 turned into an object-to-world pose (:mod:`tivne.slam.objects.motion` derives it). The track's
 velocity predicts the pose and, as a prior of ``objects.accel_sigma`` / ``angular_accel_sigma``, holds
 what the pixels leave open (a symmetric object's spin, a blurred view); a pose more than
-``MOTION_GATE_SIGMAS`` σ of that prior from the prediction is refused. An object seen again after
-more than ``max_gap_s`` starts from its last pose moved so that its last observed points'
-centre lands on the new observation's, turned by the best of several rotation hypotheses
-(:mod:`tivne.slam.objects.reacquire`). Objects cut off by the image border, and objects coming back
-while partly hidden, wait for a whole view; a reference is renewed when its overlap or inlier ratio
-falls, never from a view that shows less than half of what it did (:mod:`tivne.slam.objects.references`).
+``MOTION_GATE_SIGMAS`` σ of that prior from the prediction is refused. An object seen again after more than
+``max_gap_s`` is re-centred on what is seen now, by a stored view that showed as much of it, and turned by the
+best of several rotation hypotheses (:mod:`tivne.slam.objects.reacquire`). Objects cut off by the border, or
+back while partly hidden, wait for a whole view; a reference is renewed when its overlap or inlier ratio
+falls, never from a view showing less than half of what it did (:mod:`tivne.slam.objects.references`).
 """
 
 from __future__ import annotations
@@ -49,6 +48,7 @@ from tivne.slam.objects.references import (
     Reference,
     add_reference,
     centred_on,
+    centring_view,
     companions,
     pick_reference,
     shows_enough,
@@ -168,8 +168,7 @@ class ObjectTracker:
         """:meth:`step` on :meth:`instances_of`, timed (``seconds``, ``frames``: the objects' cost)."""
         start = time.perf_counter()
         out = self.step(frame, camera_pose, tau, self.instances_of(frame, dynamic))
-        self.seconds += time.perf_counter() - start
-        self.frames += 1
+        self.seconds, self.frames = self.seconds + time.perf_counter() - start, self.frames + 1
         return out
 
     def metrics(self) -> dict[str, Any]:
@@ -224,8 +223,8 @@ class ObjectTracker:
             self._new_reference(oid, inner, pyramid, depth, T_wc, T_pred, tau, t)
             return ObjectObservation(oid, tau, t, T_pred, pixels, False, reidentified=reid, new_reference=True)
         if back:  # it may have turned by anything meanwhile: several rotations, the best alignment
-            ref, res = reacquire(live.references, track, pyramid, T_pred, T_wc, world_points(inner, depth, self.K, T_wc).mean(0),
-                                 self.odo, live.typical_rms())
+            ref, res = reacquire(live.references, track, pyramid, int(inner.sum()), T_pred, T_wc,
+                                 world_points(inner, depth, self.K, T_wc).mean(0), self.odo, live.typical_rms())
         else:
             C_pred = camera_in_object(T_pred, T_wc)
             ref = pick_reference(live.references, C_pred, REUSE_ANGLE_DEG)
@@ -338,9 +337,9 @@ class ObjectTracker:
         """Constant velocity: the track's last two observations carried on (``pose_at``), when the
         object was seen within ``max_gap_s`` or those two were no more than that apart; else its
         last pose. After a gap that pose is moved so the last observed points' centre lands on the
-        centre of this observation, which only picks the stored view nearest the predicted side;
-        that view then centres it (:func:`centred_on`: the last view may have been a sliver at the
-        border, whose centre is not the centre of a whole view)."""
+        centre of this observation, which only picks the predicted side; the stored view of that
+        side that showed about as much as now then centres it (:func:`centring_view`,
+        :func:`centred_on`: the last view may have been a sliver, whose centre is not a whole view's)."""
         track, live = self.tracks[oid], self.live.get(oid)
         recent = live is not None and t - live.last_time <= self.cfg.max_gap_s
         # Just seen: carried on at the track's last velocity, across a gap if it had one (held still it
@@ -352,7 +351,7 @@ class ObjectTracker:
             centre_now = world_points(mask, depth, self.K, T_wc).mean(0)
             T[:3, 3] += centre_now - transform_points(T, live.points.mean(0, keepdim=True))[0]
             if live.references:
-                ref = pick_reference(live.references, camera_in_object(T, T_wc), REUSE_ANGLE_DEG)
+                ref = centring_view(live.references, camera_in_object(T, T_wc), int(mask.sum()), REUSE_ANGLE_DEG)
                 T = centred_on(T, ref, centre_now, T_wc[:3, :3], track.middle)
         return T
 

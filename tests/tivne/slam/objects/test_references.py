@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from tivne.slam.objects.references import Reference, add_reference, centred_on, companions, pick_reference, shows_enough
+from tivne.slam.objects.references import Reference, add_reference, centred_on, centring_view, companions, pick_reference, shows_enough
 
 
 def _camera_at(position) -> torch.Tensor:
@@ -96,3 +96,29 @@ def test_a_pose_is_centred_where_the_origin_sat_behind_what_its_reference_saw():
     placed = centred_on(T, ref_at_middle, centre, torch.eye(3, dtype=torch.float64), middle)
     assert torch.allclose(placed[:3, 3] + T[:3, :3] @ middle, torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
     assert torch.allclose(placed[:3, 3], torch.tensor([1.0, 1.8, 3.0], dtype=torch.float64))
+
+
+def test_an_object_seen_again_is_centred_on_the_stored_view_that_showed_as_much_of_it():
+    """The oldest view of the side saw only the left half of the object's front (an occluder hid the
+    rest), a later one all of it: a whole view now is centred on the whole one (the origin where it
+    is), not on the half view, which would put the origin a quarter of the object off sideways."""
+    half = torch.tensor([[x, y, 0.1] for x in (-0.1, -0.05) for y in (-0.05, 0.05)], dtype=torch.float32)
+    whole = torch.tensor([[x, y, 0.1] for x in (-0.1, -0.05, 0.05, 0.1) for y in (-0.05, 0.05)], dtype=torch.float32)
+    occluded = Reference([], _camera_at((0.0, 0.0, 1.0)), 0.0, 500, half)
+    full = Reference([], _camera_at((0.0, 0.02, 1.0)), 1.0, 1000, whole)
+    other_side = Reference([], _camera_at((1.0, 0.0, 0.0)), 2.0, 1100, whole)
+    refs = [occluded, full, other_side]
+    C_pred = _camera_at((0.0, 0.01, 1.0))
+    assert pick_reference(refs, C_pred, 12.0) is occluded  # the alignment's choice: the oldest of the side
+    assert centring_view(refs, C_pred, 980, 12.0) is full
+    assert centring_view(refs, C_pred, 520, 12.0) is occluded  # half hidden now as well
+    # Twice as far, a whole view covers a quarter of the pixels.
+    assert centring_view(refs, _camera_at((0.0, 0.0, 2.0)), 250, 12.0) is pick_reference(refs, _camera_at((0.0, 0.0, 2.0)), 12.0)
+    far_refs = [Reference([], _camera_at((0.0, 0.0, 2.0)), 0.0, 130, half), Reference([], _camera_at((0.0, 0.0, 2.1)), 1.0, 250, whole)]
+    assert centring_view(far_refs, _camera_at((0.0, 0.0, 1.0)), 1000, 12.0) is pick_reference(far_refs, _camera_at((0.0, 0.0, 1.0)), 12.0)
+    assert centring_view(far_refs, _camera_at((0.0, 0.0, 2.05)), 240, 12.0).tau == 1.0
+    centre = torch.tensor([0.0, 0.0, 2.9], dtype=torch.float64)  # the whole front's centre, seen now
+    right = centred_on(torch.eye(4, dtype=torch.float64), centring_view(refs, C_pred, 980, 12.0), centre, torch.eye(3, dtype=torch.float64))
+    wrong = centred_on(torch.eye(4, dtype=torch.float64), occluded, centre, torch.eye(3, dtype=torch.float64))
+    assert torch.allclose(right[:3, 3], torch.tensor([0.0, 0.0, 2.8], dtype=torch.float64))
+    assert abs(float(wrong[0, 3]) - 0.075) < 1e-6  # the half view puts it 7.5 cm off sideways
