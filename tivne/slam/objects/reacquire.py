@@ -23,7 +23,7 @@ import torch
 from data_modules.poses import rotation_from_vector, rotation_vector
 from tivne.config import OdometryConfig
 from tivne.slam.objects.motion import camera_in_object, object_pose, odometry_init
-from tivne.slam.objects.references import REUSE_ANGLE_DEG, Reference, centred_on, centring_view
+from tivne.slam.objects.references import REUSE_ANGLE_DEG, Reference, centred_on, comparable_view
 from tivne.slam.objects.track import ObjectTrack
 from tivne.slam.tracking.odometry import OdometryResult, track_pyramids
 from tivne.slam.tracking.pyramid import PyramidLevel
@@ -114,12 +114,13 @@ def spin_axis(taus: list[float], poses: torch.Tensor, baseline: float, min_deg: 
 
 
 def reacquire(references: list[Reference], track: ObjectTrack, pyramid: list[PyramidLevel], pixels: int, T_pred: torch.Tensor,
-              T_wc: torch.Tensor, centre: torch.Tensor, odometry: OdometryConfig, typical_rms: float = math.nan) -> tuple[Reference, OdometryResult]:
+              T_wc: torch.Tensor, centre: torch.Tensor, odometry: OdometryConfig,
+              typical_rms: float = math.nan) -> tuple[Reference, OdometryResult]:
     """(reference, odometry result) of an object seen again after a gap, from its current ``pyramid``
     (``pixels`` object pixels), its predicted pose ``T_pred`` (4, 4) and the camera pose ``T_wc`` (4, 4):
     the prediction turned about the object's origin (:func:`rotation_hypotheses`), each hypothesis
     centred on what is seen now (``centre`` (3,), world; :func:`centred_on`) by the stored view of
-    its side that showed about as much of the object (:func:`centring_view`: against a view cut by an
+    its side that showed about as much of the object (:func:`comparable_view`: against a view cut by an
     occluder a whole one neither centres nor aligns; measured, crossing seed 2 with geometric masks:
     every alignment at RMS 0.13-0.15 against a typical 0.018, the track 22 cm off for the rest of the
     run) and aligned at the coarsest level against that view; the best ``REFINED`` and
@@ -134,13 +135,13 @@ def reacquire(references: list[Reference], track: ObjectTrack, pyramid: list[Pyr
         axes = torch.cat([spin[None], axes])
     candidates = []
     for T in rotation_hypotheses(T_pred, axes, STEP_DEG):
-        ref = centring_view(references, camera_in_object(T, T_wc), pixels, REUSE_ANGLE_DEG)
+        ref = comparable_view(references, camera_in_object(T, T_wc), pixels, REUSE_ANGLE_DEG)
         T = centred_on(T, ref, centre, T_wc[:3, :3], track.middle)
         res = track_pyramids(ref.pyramid[-1:], pyramid[-1:], odometry_init(T, T_wc, ref.C), coarse)
         candidates.append(Hypothesis(object_pose(T_wc, res.T_ref_cur, ref.C), res))
     tops = ranked_alignments(candidates)[:REFINED]
     tops += [candidates[0]] if all(h is not candidates[0] for h in tops) else []  # the prediction is always refined
-    refs = [centring_view(references, camera_in_object(h.T_wo, T_wc), pixels, REUSE_ANGLE_DEG) for h in tops]
+    refs = [comparable_view(references, camera_in_object(h.T_wo, T_wc), pixels, REUSE_ANGLE_DEG) for h in tops]
     refined = [Hypothesis(h.T_wo, track_pyramids(r.pyramid, pyramid, odometry_init(h.T_wo, T_wc, r.C), odometry))
                for h, r in zip(tops, refs)]
     k_pred = next(i for i, h in enumerate(tops) if h is candidates[0])

@@ -56,7 +56,7 @@ def pick_reference(references: list[Reference], C_pred: torch.Tensor, max_angle_
     return references[max(range(len(references)), key=lambda i: (float(cosines[i]), i))]
 
 
-def centring_view(references: list[Reference], C_pred: torch.Tensor, pixels: int, max_angle_deg: float) -> Reference:
+def comparable_view(references: list[Reference], C_pred: torch.Tensor, pixels: int, max_angle_deg: float) -> Reference:
     """The stored view to centre an object seen again on (:func:`centred_on`) and to align it to: of
     those that saw it from within ``max_angle_deg`` of the predicted view C_pred (4, 4) and from a
     distance within 25 %, the one that showed about as much of it as the ``pixels`` seen now (scaled

@@ -48,8 +48,8 @@ from tivne.slam.objects.references import (
     Reference,
     add_reference,
     centred_on,
-    centring_view,
     companions,
+    comparable_view,
     pick_reference,
     shows_enough,
 )
@@ -338,7 +338,7 @@ class ObjectTracker:
         object was seen within ``max_gap_s`` or those two were no more than that apart; else its
         last pose. After a gap that pose is moved so the last observed points' centre lands on the
         centre of this observation, which only picks the predicted side; the stored view of that
-        side that showed about as much as now then centres it (:func:`centring_view`,
+        side that showed about as much as now then centres it (:func:`comparable_view`,
         :func:`centred_on`: the last view may have been a sliver, whose centre is not a whole view's)."""
         track, live = self.tracks[oid], self.live.get(oid)
         recent = live is not None and t - live.last_time <= self.cfg.max_gap_s
@@ -351,7 +351,7 @@ class ObjectTracker:
             centre_now = world_points(mask, depth, self.K, T_wc).mean(0)
             T[:3, 3] += centre_now - transform_points(T, live.points.mean(0, keepdim=True))[0]
             if live.references:
-                ref = centring_view(live.references, camera_in_object(T, T_wc), int(mask.sum()), REUSE_ANGLE_DEG)
+                ref = comparable_view(live.references, camera_in_object(T, T_wc), int(mask.sum()), REUSE_ANGLE_DEG)
                 T = centred_on(T, ref, centre_now, T_wc[:3, :3], track.middle)
         return T
 

@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from tivne.slam.objects.references import Reference, add_reference, centred_on, centring_view, companions, pick_reference, shows_enough
+from tivne.slam.objects.references import Reference, add_reference, centred_on, companions, comparable_view, pick_reference, shows_enough
 
 
 def _camera_at(position) -> torch.Tensor:
@@ -110,15 +110,16 @@ def test_an_object_seen_again_is_centred_on_the_stored_view_that_showed_as_much_
     refs = [occluded, full, other_side]
     C_pred = _camera_at((0.0, 0.01, 1.0))
     assert pick_reference(refs, C_pred, 12.0) is occluded  # the alignment's choice: the oldest of the side
-    assert centring_view(refs, C_pred, 980, 12.0) is full
-    assert centring_view(refs, C_pred, 520, 12.0) is occluded  # half hidden now as well
+    assert comparable_view(refs, C_pred, 980, 12.0) is full
+    assert comparable_view(refs, C_pred, 520, 12.0) is occluded  # half hidden now as well
     # Twice as far, a whole view covers a quarter of the pixels.
-    assert centring_view(refs, _camera_at((0.0, 0.0, 2.0)), 250, 12.0) is pick_reference(refs, _camera_at((0.0, 0.0, 2.0)), 12.0)
+    assert comparable_view(refs, _camera_at((0.0, 0.0, 2.0)), 250, 12.0) is pick_reference(refs, _camera_at((0.0, 0.0, 2.0)), 12.0)
     far_refs = [Reference([], _camera_at((0.0, 0.0, 2.0)), 0.0, 130, half), Reference([], _camera_at((0.0, 0.0, 2.1)), 1.0, 250, whole)]
-    assert centring_view(far_refs, _camera_at((0.0, 0.0, 1.0)), 1000, 12.0) is pick_reference(far_refs, _camera_at((0.0, 0.0, 1.0)), 12.0)
-    assert centring_view(far_refs, _camera_at((0.0, 0.0, 2.05)), 240, 12.0).tau == 1.0
+    assert comparable_view(far_refs, _camera_at((0.0, 0.0, 1.0)), 1000, 12.0) is pick_reference(far_refs, _camera_at((0.0, 0.0, 1.0)), 12.0)
+    assert comparable_view(far_refs, _camera_at((0.0, 0.0, 2.05)), 240, 12.0).tau == 1.0
     centre = torch.tensor([0.0, 0.0, 2.9], dtype=torch.float64)  # the whole front's centre, seen now
-    right = centred_on(torch.eye(4, dtype=torch.float64), centring_view(refs, C_pred, 980, 12.0), centre, torch.eye(3, dtype=torch.float64))
-    wrong = centred_on(torch.eye(4, dtype=torch.float64), occluded, centre, torch.eye(3, dtype=torch.float64))
+    eye4, eye3 = torch.eye(4, dtype=torch.float64), torch.eye(3, dtype=torch.float64)
+    right = centred_on(eye4, comparable_view(refs, C_pred, 980, 12.0), centre, eye3)
+    wrong = centred_on(eye4, occluded, centre, eye3)
     assert torch.allclose(right[:3, 3], torch.tensor([0.0, 0.0, 2.8], dtype=torch.float64))
     assert abs(float(wrong[0, 3]) - 0.075) < 1e-6  # the half view puts it 7.5 cm off sideways
