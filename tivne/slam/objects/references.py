@@ -33,13 +33,15 @@ def view_direction(C: torch.Tensor) -> torch.Tensor:
     return C[:3, 3] / C[:3, 3].norm().clamp_min(1e-9)
 
 
-def _seen_alike(references: list[Reference], C_pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _seen_alike(references: list[Reference], C_pred: torch.Tensor, max_angle_deg: float) -> tuple[torch.Tensor, torch.Tensor]:
     """(N,) cosines between each stored view's direction and that of the predicted view C_pred (4, 4),
-    and (N,) bool: the view was taken from a distance within ``DISTANCE_RATIO`` of C_pred's."""
+    and (N,) bool: the view was taken from within ``max_angle_deg`` of C_pred's direction and from a
+    distance within ``DISTANCE_RATIO`` of C_pred's."""
     d_pred, dist_pred = view_direction(C_pred), float(C_pred[:3, 3].norm())
     cosines = torch.stack([view_direction(ref.C) @ d_pred for ref in references])
     ratio = torch.stack([ref.C[:3, 3].norm() for ref in references]) / max(dist_pred, 1e-9)
-    return cosines, (ratio >= 1.0 / DISTANCE_RATIO) & (ratio <= DISTANCE_RATIO)
+    same_distance = (ratio >= 1.0 / DISTANCE_RATIO) & (ratio <= DISTANCE_RATIO)
+    return cosines, (cosines >= float(np.cos(np.radians(max_angle_deg)))) & same_distance
 
 
 def pick_reference(references: list[Reference], C_pred: torch.Tensor, max_angle_deg: float) -> Reference:
@@ -48,8 +50,7 @@ def pick_reference(references: list[Reference], C_pred: torch.Tensor, max_angle_
     equals): tracking against the oldest usable view, not a chain of the latest ones, keeps the
     object's drift from growing with every new keyframe; and a turning object seen again from a
     side an older keyframe saw is aligned to that one, not to the newest, which saw another side."""
-    cosines, same_distance = _seen_alike(references, C_pred)
-    usable = (cosines >= float(np.cos(np.radians(max_angle_deg)))) & same_distance
+    cosines, usable = _seen_alike(references, C_pred, max_angle_deg)
     usable[-1] = False  # the newest is the fallback's, by direction alone
     if bool(usable.any()):
         return references[int(usable.nonzero()[0, 0])]
@@ -63,8 +64,7 @@ def comparable_view(references: list[Reference], C_pred: torch.Tensor, pixels: i
     to the distance), else :func:`pick_reference`'s. Where a side's centre lies depends on how much
     of the side is seen, so a view cut by an occluder centres a whole one off by up to half the
     object, and a whole view overlaps it too little to be aligned to it."""
-    cosines, same_distance = _seen_alike(references, C_pred)
-    near = ((cosines >= float(np.cos(np.radians(max_angle_deg)))) & same_distance).nonzero().flatten().tolist()
+    near = _seen_alike(references, C_pred, max_angle_deg)[1].nonzero().flatten().tolist()
     if not near:
         return pick_reference(references, C_pred, max_angle_deg)
     dist = float(C_pred[:3, 3].norm())
@@ -81,8 +81,7 @@ def companions(references: list[Reference], ref: Reference, C_pred: torch.Tensor
     in direction first: aligned jointly with ``ref``, their pixels average out each single view's
     noise and pose error (a symmetric object's spin rests on its texture, seen a little differently
     in each view)."""
-    cosines, same_distance = _seen_alike(references, C_pred)
-    near = (cosines >= float(np.cos(np.radians(max_angle_deg)))) & same_distance
+    cosines, near = _seen_alike(references, C_pred, max_angle_deg)
     order = sorted((i for i in range(len(references)) if bool(near[i]) and references[i] is not ref), key=lambda i: (-float(cosines[i]), i))
     return [references[i] for i in order[:count]]
 

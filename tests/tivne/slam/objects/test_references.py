@@ -101,7 +101,7 @@ def test_a_pose_is_centred_where_the_origin_sat_behind_what_its_reference_saw():
 def test_an_object_seen_again_is_centred_on_the_stored_view_that_showed_as_much_of_it():
     """The oldest view of the side saw only the left half of the object's front (an occluder hid the
     rest), a later one all of it: a whole view now is centred on the whole one (the origin where it
-    is), not on the half view, which would put the origin a quarter of the object off sideways."""
+    is), not on the half view, which would put the origin 7.5 cm off sideways (the front is 20 cm wide)."""
     half = torch.tensor([[x, y, 0.1] for x in (-0.1, -0.05) for y in (-0.05, 0.05)], dtype=torch.float32)
     whole = torch.tensor([[x, y, 0.1] for x in (-0.1, -0.05, 0.05, 0.1) for y in (-0.05, 0.05)], dtype=torch.float32)
     occluded = Reference([], _camera_at((0.0, 0.0, 1.0)), 0.0, 500, half)
@@ -112,8 +112,9 @@ def test_an_object_seen_again_is_centred_on_the_stored_view_that_showed_as_much_
     assert pick_reference(refs, C_pred, 12.0) is occluded  # the alignment's choice: the oldest of the side
     assert comparable_view(refs, C_pred, 980, 12.0) is full
     assert comparable_view(refs, C_pred, 520, 12.0) is occluded  # half hidden now as well
-    # Twice as far, a whole view covers a quarter of the pixels.
+    # No stored view from about that distance: pick_reference's choice.
     assert comparable_view(refs, _camera_at((0.0, 0.0, 2.0)), 250, 12.0) is pick_reference(refs, _camera_at((0.0, 0.0, 2.0)), 12.0)
+    # Pixel counts are compared at one distance: a view from twice as far covers a quarter of them.
     far_refs = [Reference([], _camera_at((0.0, 0.0, 2.0)), 0.0, 130, half), Reference([], _camera_at((0.0, 0.0, 2.1)), 1.0, 250, whole)]
     assert comparable_view(far_refs, _camera_at((0.0, 0.0, 1.0)), 1000, 12.0) is pick_reference(far_refs, _camera_at((0.0, 0.0, 1.0)), 12.0)
     assert comparable_view(far_refs, _camera_at((0.0, 0.0, 2.05)), 240, 12.0).tau == 1.0
