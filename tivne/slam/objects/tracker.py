@@ -168,7 +168,8 @@ class ObjectTracker:
         """:meth:`step` on :meth:`instances_of`, timed (``seconds``, ``frames``: the objects' cost)."""
         start = time.perf_counter()
         out = self.step(frame, camera_pose, tau, self.instances_of(frame, dynamic))
-        self.seconds, self.frames = self.seconds + time.perf_counter() - start, self.frames + 1
+        self.seconds += time.perf_counter() - start
+        self.frames += 1
         return out
 
     def metrics(self) -> dict[str, Any]:
