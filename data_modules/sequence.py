@@ -71,6 +71,11 @@ def _is_count(value: object) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1
 
 
+def _is_index(value: object) -> bool:
+    """A frame number: an integer >= 0 (not a bool)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 0
+
+
 def _count_rule(value: object) -> str:
     """The rule a bad count broke: ">= 1" for an integer below it, "an integer >= 1" otherwise."""
     integer = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
@@ -94,7 +99,10 @@ def resize_frame(frame: Frame, width: int, height: int) -> Frame:
 
 
 class SequenceView(SequenceDataset):
-    """A strided, truncated, resized and depth-clipped view of another sequence."""
+    """A strided, truncated, resized and depth-clipped view of another sequence, from its
+    ``first_frame``-th frame on (0-based, before the stride: a stretch of a long recording), without
+    the recording's frames ``drop_frames`` = [first, last] (a dropped stretch, as a recorder that
+    stalled leaves one)."""
 
     def __init__(
         self,
@@ -104,6 +112,8 @@ class SequenceView(SequenceDataset):
         resize: Sequence[int] | None = None,
         depth_min: float = 0.0,
         depth_max: float | None = None,
+        first_frame: int = 0,
+        drop_frames: Sequence[int] | None = None,
     ) -> None:
         if not _is_count(stride):
             raise DatasetError("data.stride", f"must be {_count_rule(stride)}, got {stride!r}")
@@ -114,9 +124,19 @@ class SequenceView(SequenceDataset):
                 raise DatasetError(f"data.{key}", f"must be a finite number >= 0, got {value!r}")
         if depth_max is not None and depth_max <= depth_min:
             raise DatasetError("data.depth_max", f"must exceed depth_min={depth_min}, got {depth_max}")
+        if not _is_index(first_frame):
+            raise DatasetError("data.first_frame", f"must be an integer >= 0, got {first_frame!r}")
+        if first_frame >= len(base):
+            raise DatasetError("data.first_frame", f"must be below the sequence's {len(base)} frames, got {first_frame}")
         self.base = base
         self.name = base.name
-        self.source_indices = np.arange(0, len(base), stride)[:max_frames]
+        indices = np.arange(first_frame, len(base), stride)
+        if drop_frames is not None:
+            if isinstance(drop_frames, (str, bytes)) or len(drop_frames) != 2 or not all(map(_is_index, drop_frames)) \
+                    or drop_frames[1] < drop_frames[0]:
+                raise DatasetError("data.drop_frames", f"must be [first, last] frame numbers, first <= last, got {list(drop_frames)}")
+            indices = indices[(indices < drop_frames[0]) | (indices > drop_frames[1])]
+        self.source_indices = indices[:max_frames]
         self.timestamps = np.asarray(base.timestamps)[self.source_indices]
         self.has_gt_poses = base.has_gt_poses
         self.has_masks = base.has_masks
@@ -162,9 +182,11 @@ class SequenceDataModule(L.LightningDataModule):
         depth_max: float | None = None,
         num_workers: int = 0,
         start: int = 0,
+        first_frame: int = 0,
+        drop_frames: Sequence[int] | None = None,
     ) -> None:
         super().__init__()
-        self.view = SequenceView(dataset, stride, max_frames, resize, depth_min, depth_max)
+        self.view = SequenceView(dataset, stride, max_frames, resize, depth_min, depth_max, first_frame, drop_frames)
         self.num_workers = num_workers
         self.start = int(start)
 

@@ -253,6 +253,7 @@ CASES: tuple[Case, ...] = (
     Case("mesh time outside the sequence", "train", (*SMOKE, "mesh.times=[99]", *TRAIN_RUN), "outside the recorded range"),
     Case("stride 0", "train", (*SMOKE, "data.stride=0", *TRAIN_RUN), "data.stride=0: must be >= 1"),
     Case("fractional stride", "train", (*SMOKE, "data.stride=1.5", *TRAIN_RUN), "data.stride=1.5: must be an integer >= 1"),
+    Case("first frame past the end", "train", (*SMOKE, "data.first_frame=100000", *TRAIN_RUN), "data.first_frame: must be below"),
     Case("NaN depth_max", "train", (*SMOKE, "data.depth_max=nan", *TRAIN_RUN), "data.depth_max=nan: must be a finite number"),
     Case("resize with one number", "train", (*SMOKE, "data.resize=[80]", *TRAIN_RUN), "data.resize=[80]: must be [width, height]"),
     Case("depth_max below depth_min", "train", (*SMOKE, "data.depth_min=2", "data.depth_max=1", *TRAIN_RUN), "must be > data.depth_min"),

@@ -24,27 +24,34 @@ MISSING = "???"  # OmegaConf's mandatory value, left for instantiate to report w
 
 @dataclass(frozen=True)
 class DataConfig(Settings):
-    """How a sequence is streamed (:class:`data_modules.sequence.SequenceView`): every ``stride``-th
-    frame, at most ``max_frames`` of them, resized to ``resize`` = [width, height] (intrinsics scaled
-    to match; null = as recorded), depth outside [depth_min, depth_max] metres made invalid."""
+    """How a sequence is streamed (:class:`data_modules.sequence.SequenceView`): from the recording's
+    ``first_frame``-th frame (0-based) every ``stride``-th frame, at most ``max_frames`` of them,
+    resized to ``resize`` = [width, height] (intrinsics scaled to match; null = as recorded), depth
+    outside [depth_min, depth_max] metres made invalid; drop_frames = [first, last] leaves those frames
+    of the recording out (a dropped stretch, to test what a stalled recorder does to tracking)."""
 
     section: ClassVar[str] = "data"
+    first_frame: int = setting(0, ge=0)
     stride: int = setting(1, ge=1)
     max_frames: int | None = setting(None, ge=1)
     resize: tuple[int, ...] | None = setting(None, ge=1)
     depth_min: float = setting(0.0, ge=0)
     depth_max: float | None = setting(10.0, gt=0)
+    drop_frames: tuple[int, ...] | None = setting(None, ge=0)
 
     def check(self) -> None:
         if self.resize is not None and len(self.resize) != 2:
             raise ConfigError(f"data.resize={list(self.resize)}: must be [width, height]")
         if self.depth_max is not None and self.depth_max <= self.depth_min:
             raise ConfigError(f"data.depth_max={self.depth_max}: must be > data.depth_min ({self.depth_min})")
+        if self.drop_frames is not None and (len(self.drop_frames) != 2 or self.drop_frames[1] < self.drop_frames[0]):
+            raise ConfigError(f"data.drop_frames={list(self.drop_frames)}: must be [first, last] with first <= last")
 
     def view_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of SequenceView (``resize`` as a list)."""
-        return {"stride": self.stride, "max_frames": self.max_frames, "resize": None if self.resize is None else list(self.resize),
-                "depth_min": self.depth_min, "depth_max": self.depth_max}
+        return {"first_frame": self.first_frame, "stride": self.stride, "max_frames": self.max_frames,
+                "resize": None if self.resize is None else list(self.resize), "depth_min": self.depth_min, "depth_max": self.depth_max,
+                "drop_frames": None if self.drop_frames is None else list(self.drop_frames)}
 
 
 def _check_numbers(key: str, values: Mapping[str, Any] | None, allowed: tuple[str, ...] | None = None) -> None:

@@ -57,6 +57,29 @@ def test_view_stride_and_max_frames():
             SequenceView(base, **kwargs)
 
 
+def test_view_starts_at_first_frame_before_the_stride():
+    base = _Ramp(10)
+    view = SequenceView(base, first_frame=4, stride=2, max_frames=2)
+    assert list(view.source_indices) == [4, 6] and [view[i].index for i in range(2)] == [4, 6]
+    assert np.allclose(view.timestamps, [5.4, 5.6])
+    assert list(SequenceView(base, first_frame=9).source_indices) == [9]
+    frames = list(SequenceDataModule(base, first_frame=7).train_dataloader())
+    assert [f.index for f in frames] == [7, 8, 9] and [float(f.gt_pose[0, 3]) for f in frames] == [7.0, 8.0, 9.0]
+    for bad, message in ((10, "below the sequence's 10 frames, got 10"), (-1, ">= 0"), (1.5, ">= 0"), (True, ">= 0")):
+        with pytest.raises(DatasetError, match=message):
+            SequenceView(base, first_frame=bad)
+
+
+def test_view_leaves_out_a_dropped_stretch():
+    base = _Ramp(10)
+    view = SequenceView(base, drop_frames=[3, 6])
+    assert list(view.source_indices) == [0, 1, 2, 7, 8, 9] and view[3].index == 7
+    assert list(SequenceView(base, first_frame=2, stride=2, drop_frames=[4, 4], max_frames=3).source_indices) == [2, 6, 8]
+    for bad in ([5, 3], [2], [-1, 3], [1.5, 3], [True, 3]):
+        with pytest.raises(DatasetError, match="data.drop_frames"):
+            SequenceView(base, drop_frames=bad)
+
+
 def test_view_resize_scales_intrinsics_and_uses_nearest_mask():
     base = _Ramp(2, width=8, height=6)
     view = SequenceView(base, resize=[4, 3])
