@@ -2,6 +2,8 @@
 
     python bench/real.py                                   # the shared TUM fr1/rpy tail, all frames
     python bench/real.py --frames 100                      # the first 100 frames
+    python bench/real.py --first 200 --frames 150          # frames 200-349: another stretch of the recording
+    python bench/real.py --drop 150 199                    # frames 150-199 dropped (a stalled recorder)
     python bench/real.py --preset 7scenes                  # the shared 7-Scenes redkitchen tail
     python bench/real.py --root path/to/rgbd_dataset_freiburg3_walking_xyz --camera fr3
     python bench/real.py --only tivne tracking.method=field  # one system; extra args: TivNe overrides
@@ -53,16 +55,23 @@ def camera_overrides(camera: str, intrinsics: tuple[float, float, float, float] 
     return out
 
 
-def load_view(root: str, camera: str, frames: int, intrinsics: tuple[float, float, float, float] | None = None, colour_camera=None):
+def load_view(root: str, camera: str, frames: int, intrinsics: tuple[float, float, float, float] | None = None, colour_camera=None,
+              select: dict | None = None):
     from data_modules.sequence import SequenceView
     from data_modules.tum import TUMSequence
 
     kwargs = dict(zip(("fx", "fy", "cx", "cy"), intrinsics)) if intrinsics is not None else {}
     seq = TUMSequence(root=root, camera=camera, colour_camera=None if colour_camera is None else list(colour_camera), **kwargs)
-    return SequenceView(seq, max_frames=frames or None)
+    return SequenceView(seq, max_frames=frames or None, **(select or {}))
 
 
-def run_tivne(root: str, camera: str, frames: int, overrides: list[str], intrinsics=None, colour_camera=None) -> dict[str, float]:
+def selection(args: argparse.Namespace) -> dict:
+    """The stretch of the recording both systems see (``data.*`` settings / SequenceView arguments)."""
+    return {"first_frame": args.first} | ({"drop_frames": list(args.drop)} if args.drop else {})
+
+
+def run_tivne(root: str, camera: str, frames: int, overrides: list[str], intrinsics=None, colour_camera=None,
+              select: dict | None = None) -> dict[str, float]:
     from hydra import compose, initialize_config_dir
 
     from data_modules.tables import read_tum_trajectory
@@ -73,11 +82,12 @@ def run_tivne(root: str, camera: str, frames: int, overrides: list[str], intrins
     args = ["dataset=tum", f"dataset.root={root}", *camera_overrides(camera, intrinsics, colour_camera), "trainer.progress_bar=false", "output.image_every=0"]
     if frames:
         args.append(f"data.max_frames={frames}")
+    args += [f"data.{key}={value}".replace(" ", "") for key, value in (select or {}).items()]
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=[*args, *overrides])
     out = Path(tempfile.mkdtemp(prefix="tivne-real-"))
     metrics = run(cfg, out)
-    view = load_view(root, camera, frames, intrinsics, colour_camera)
+    view = load_view(root, camera, frames, intrinsics, colour_camera, select)
     ts, est = read_tum_trajectory(out / "trajectory.txt")
     gt = {float(view.timestamps[i]): view[i].gt_pose for i in range(len(view))}
     keep = [i for i, t in enumerate(ts) if gt.get(float(t)) is not None]
@@ -91,14 +101,15 @@ def child(args: argparse.Namespace, overrides: list[str]) -> None:
     intrinsics = tuple(args.intrinsics) if args.intrinsics else None
     colour = tuple(args.colour_camera) if args.colour_camera else None
     if args.only == "open3d":
-        figures = run_open3d(load_view(args.root, args.camera, args.frames, intrinsics, colour))
+        figures = run_open3d(load_view(args.root, args.camera, args.frames, intrinsics, colour, selection(args)))
     else:
-        figures = run_tivne(args.root, args.camera, args.frames, overrides, intrinsics, colour)
+        figures = run_tivne(args.root, args.camera, args.frames, overrides, intrinsics, colour, selection(args))
     print(figures_line(figures))
 
 
 def run_child(system: str, args: argparse.Namespace, overrides: list[str]) -> dict[str, float] | None:
-    cmd = [sys.executable, __file__, "--child", "--only", system, "--root", args.root, "--camera", args.camera, "--frames", str(args.frames)]
+    cmd = [sys.executable, __file__, "--child", "--only", system, "--root", args.root, "--camera", args.camera,
+           "--frames", str(args.frames), "--first", str(args.first)] + (["--drop", *map(str, args.drop)] if args.drop else [])
     if args.intrinsics:
         cmd += ["--intrinsics", *map(str, args.intrinsics)]
     if args.colour_camera:
@@ -137,6 +148,8 @@ def main() -> None:
                         help="colour not registered to depth: its camera (dataset.colour_camera)")
     parser.add_argument("--threads", type=int, default=2, help="OpenMP threads of each system's process")
     parser.add_argument("--frames", type=int, default=0, help="first n frames (0 = all)")
+    parser.add_argument("--first", type=int, default=0, help="start at this frame of the recording (0-based)")
+    parser.add_argument("--drop", type=int, nargs=2, default=None, metavar=("FIRST", "LAST"), help="leave these frames out")
     parser.add_argument("--only", choices=("tivne", "open3d"), default=None)
     parser.add_argument("--json", default=None, help="also write the figures here")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
@@ -149,7 +162,9 @@ def main() -> None:
         return child(args, overrides)
     systems = [args.only] if args.only else ["tivne", "open3d"]
     results = {s: run_child(s, args, overrides) for s in systems}
-    print(f"\nbench/real.py on {args.root} ({args.frames or 'all'} frames; TivNe overrides: {' '.join(overrides) or 'none'})")
+    print(f"\nbench/real.py on {args.root} ({args.frames or 'all'} frames from frame {args.first}"
+          f"{f', frames {args.drop[0]}-{args.drop[1]} dropped' if args.drop else ''}; "
+          f"TivNe overrides: {' '.join(overrides) or 'none'})")
     print(table({"TivNe" if k == "tivne" else "Open3D": v for k, v in results.items()}))
     print(json.dumps(results))
     if args.json:
