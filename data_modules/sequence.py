@@ -136,6 +136,8 @@ class SequenceView(SequenceDataset):
                     or drop_frames[1] < drop_frames[0]:
                 raise DatasetError("data.drop_frames", f"must be [first, last] frame numbers, first <= last, got {list(drop_frames)}")
             indices = indices[(indices < drop_frames[0]) | (indices > drop_frames[1])]
+            if len(indices) == 0:
+                raise DatasetError("data.drop_frames", f"{list(drop_frames)} leaves none of the {len(base)} frames")
         self.source_indices = indices[:max_frames]
         self.timestamps = np.asarray(base.timestamps)[self.source_indices]
         self.has_gt_poses = base.has_gt_poses

@@ -78,6 +78,8 @@ def test_view_leaves_out_a_dropped_stretch():
     for bad in ([5, 3], [2], [-1, 3], [1.5, 3], [True, 3]):
         with pytest.raises(DatasetError, match="data.drop_frames"):
             SequenceView(base, drop_frames=bad)
+    with pytest.raises(DatasetError, match=r"\[0, 9\] leaves none of the 10 frames"):
+        SequenceView(base, drop_frames=[0, 9])
 
 
 def test_view_resize_scales_intrinsics_and_uses_nearest_mask():
