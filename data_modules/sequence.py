@@ -66,20 +66,24 @@ class SequenceDataset(Dataset, abc.ABC):
         }
 
 
-def _is_count(value: object) -> bool:
-    """An integer >= 1 (not a bool, not 1.5)."""
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1
+def _is_integer(value: object) -> bool:
+    """An integer (not a bool, not 1.5)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
-def _is_index(value: object) -> bool:
-    """A frame number: an integer >= 0 (not a bool)."""
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 0
+def _is_count(value: object, least: int = 1) -> bool:
+    """An integer >= ``least`` (1: a count; 0: a frame number)."""
+    return _is_integer(value) and value >= least
+
+
+def _is_frame_range(value: object) -> bool:
+    """[first, last] frame numbers with first <= last."""
+    return not isinstance(value, (str, bytes)) and len(value) == 2 and all(_is_count(v, 0) for v in value) and value[0] <= value[1]
 
 
 def _count_rule(value: object) -> str:
     """The rule a bad count broke: ">= 1" for an integer below it, "an integer >= 1" otherwise."""
-    integer = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-    return ">= 1" if integer else "an integer >= 1"
+    return ">= 1" if _is_integer(value) else "an integer >= 1"
 
 
 def resize_frame(frame: Frame, width: int, height: int) -> Frame:
@@ -124,7 +128,7 @@ class SequenceView(SequenceDataset):
                 raise DatasetError(f"data.{key}", f"must be a finite number >= 0, got {value!r}")
         if depth_max is not None and depth_max <= depth_min:
             raise DatasetError("data.depth_max", f"must exceed depth_min={depth_min}, got {depth_max}")
-        if not _is_index(first_frame):
+        if not _is_count(first_frame, 0):
             raise DatasetError("data.first_frame", f"must be an integer >= 0, got {first_frame!r}")
         if first_frame >= len(base):
             raise DatasetError("data.first_frame", f"must be below the sequence's {len(base)} frames, got {first_frame}")
@@ -132,8 +136,7 @@ class SequenceView(SequenceDataset):
         self.name = base.name
         indices = np.arange(first_frame, len(base), stride)
         if drop_frames is not None:
-            if isinstance(drop_frames, (str, bytes)) or len(drop_frames) != 2 or not all(map(_is_index, drop_frames)) \
-                    or drop_frames[1] < drop_frames[0]:
+            if not _is_frame_range(drop_frames):
                 raise DatasetError("data.drop_frames", f"must be [first, last] frame numbers, first <= last, got {list(drop_frames)}")
             indices = indices[(indices < drop_frames[0]) | (indices > drop_frames[1])]
             if len(indices) == 0:
