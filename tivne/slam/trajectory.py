@@ -154,6 +154,11 @@ class PoseBook:
         count = min(n, len(self.trajectory))
         return [self.trajectory.pose(i, kf) for i in range(-count, 0)]
 
+    def recent_times(self, n: int) -> list[float]:
+        """The last ``n`` processed frames' timestamps in seconds, oldest first (fewer early on)."""
+        records = self.trajectory.records
+        return [r.timestamp for r in records[max(0, len(records) - n):]]
+
     def all(self) -> torch.Tensor:
         """(N, 4, 4) float64 c2w of every processed frame."""
         return self.trajectory.poses(self.keyframe_poses())

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
-from tivne.slam.trajectory import Trajectory
+from tivne.slam.trajectory import PoseBook, Trajectory
 
 
 def shifted(x: float) -> torch.Tensor:
@@ -26,6 +27,9 @@ def test_frames_follow_their_keyframe_until_it_is_frozen():
     traj.freeze(5, kf.pop(5))  # it left the store: its frames keep their poses without it
     assert torch.allclose(traj.poses(kf)[:, 0, 3], torch.tensor([0.0, 0.2, 2.0, 2.3], dtype=torch.float64))
     assert traj.ate(kf) is None and traj.timestamps() == [0.0, 0.1, 0.5, 0.6]
+    book = PoseBook(traj, lambda: kf)  # what tracking reads: the last poses and their times
+    assert book.recent_times(2) == [0.5, 0.6] and book.recent_times(9) == [0.0, 0.1, 0.5, 0.6]
+    assert [float(p[0, 3]) for p in book.recent(2)] == pytest.approx([2.0, 2.3])
 
 
 def turned(x: float, degrees: float) -> torch.Tensor:

@@ -9,7 +9,7 @@ import torch
 
 from tivne.config import FieldTrackingConfig, LossWeights, RenderConfig
 from tivne.field.networks import TimeVaryingField
-from tivne.geometry import invert_pose, orthonormalize_pose, se3_exp
+from tivne.geometry import invert_pose, orthonormalize_pose, se3_exp, se3_log
 from tivne.render.losses import robust_ray_mask, slam_loss
 from tivne.render.rays import View
 from tivne.render.renderer import render_pixels
@@ -17,10 +17,16 @@ from tivne.render.samplers import PixelPool, draw
 from tivne.slam.tracking.result import FieldTrackStats
 
 
-def predict_pose(previous: list[torch.Tensor], motion_model: str) -> torch.Tensor:
-    """Initial pose from the last tracked poses (c2w): zero motion, or T_{k-1} T_{k-2}⁻¹ T_{k-1}."""
+def predict_pose(previous: list[torch.Tensor], motion_model: str, steps: float = 1.0) -> torch.Tensor:
+    """Initial pose from the last poses (c2w, (4, 4) each, oldest first): zero motion, or constant
+    velocity, the last step D = T_{k-1} T_{k-2}⁻¹ carried on for ``steps`` of its own duration,
+    exp(steps · log D) T_{k-1} (D T_{k-1} at steps = 1): the time to this frame over the time
+    between the last two, so frames a recorder dropped neither stretch nor shrink the velocity."""
     if motion_model == "constant_velocity" and len(previous) >= 2:
-        return orthonormalize_pose(previous[-1] @ invert_pose(previous[-2]) @ previous[-1])
+        step = previous[-1] @ invert_pose(previous[-2])
+        if abs(steps - 1.0) > 1e-6:  # else the one-step product as it is, not through log and exp
+            step = se3_exp(steps * se3_log(step.double())).to(step.dtype)
+        return orthonormalize_pose(step @ previous[-1])
     return previous[-1].clone()
 
 

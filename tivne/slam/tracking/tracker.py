@@ -13,8 +13,13 @@ not tracked (:attr:`TrackStatus.NO_DEPTH`). Loss (:attr:`TrackStatus.LOST`): the
 recovery) reports failure, or, for the field tracker alone, its inlier ratio falls below
 ``field_tracking.min_inlier_ratio``, or the pose jumps further from the motion model's prediction
 than ``tracking.max_jump_m`` / ``max_jump_deg``. Recovery re-tracks against the reference from the
-last pose (zero motion) with a wider basin (one more pyramid level, twice the iterations). A lost
-frame keeps the predicted pose and is never mapped.
+last pose (zero motion) with a wider basin (one more pyramid level, twice the iterations). Where the
+time since the last frame is not the last step's (frames a recorder dropped, or late), a frame lost
+against the one-step constant-velocity prediction is aligned once more from the velocity carried over
+the time that passed, and kept where that alignment holds and lands within the jump gate of its own
+prediction: a camera that kept moving while frames were missing is not refused as a jump, and the
+one-step prediction stays first, since carrying a rocking camera's velocity over a long gap points
+it elsewhere. A lost frame keeps the one-step prediction and is never mapped.
 
 The tracker owns no pose: the reference is a frame id, and every pose (the reference's, the motion
 model's last two) is read from the run's pose owners through a :class:`PoseLookup`.
@@ -56,6 +61,8 @@ class PoseLookup(Protocol):
     def pose(self, frame_id: int) -> torch.Tensor: ...
 
     def recent(self, n: int) -> list[torch.Tensor]: ...
+
+    def recent_times(self, n: int) -> list[float]: ...
 
 
 @dataclass(frozen=True)
@@ -101,6 +108,15 @@ class TrackingCounts:
 def pose_jump(pose: torch.Tensor, predicted: torch.Tensor) -> tuple[float, float]:
     """(metres, degrees) between a tracked and a predicted c2w pose."""
     return pose_difference(predicted, pose)
+
+
+def velocity_steps(times: list[float], now: float) -> float:
+    """How many of the last step's durations lie between the last processed frame and this one:
+    (now - t_{k-1}) / (t_{k-1} - t_{k-2}) from ``times`` (seconds, oldest first); 1 without two
+    distinct earlier times."""
+    if len(times) < 2 or times[-1] <= times[-2]:
+        return 1.0
+    return (now - times[-1]) / (times[-1] - times[-2])
 
 
 def reference_to_drop(stored: list[torch.Tensor], max_m: float, max_deg: float) -> int:
@@ -156,7 +172,8 @@ class Tracker:
             return TrackResult(TrackStatus.NO_DEPTH, previous[-1].clone(), previous[-1].clone())
         start = time.perf_counter()
         query = last_mapped_tau if self.field_cfg.query_time == "last_mapped" else tau
-        result = self._track(View(index, query, frame.rgb, frame.depth, mask, previous[-1]), previous, poses, field, K, generator)
+        steps = velocity_steps(poses.recent_times(2), float(frame.timestamp))
+        result = self._track(View(index, query, frame.rgb, frame.depth, mask, previous[-1]), previous, steps, poses, field, K, generator)
         self.counts.seconds += time.perf_counter() - start
         self.counts.frames += 1
         self.counts.field_iters += self.field_cfg.iters if self.cfg.reads_map else 0
@@ -167,30 +184,43 @@ class Tracker:
         return result
 
     def _track(
-        self, view: View, previous: list[torch.Tensor], poses: PoseLookup, field: TimeVaryingField, K: torch.Tensor,
+        self, view: View, previous: list[torch.Tensor], steps: float, poses: PoseLookup, field: TimeVaryingField, K: torch.Tensor,
         generator: torch.Generator | None,
     ) -> TrackResult:
+        """``steps``: the time since the last frame in durations of the last step (:func:`velocity_steps`)."""
         predicted = predict_pose(previous, self.cfg.motion_model)
         pose, odometry, field_stats, lost, recovered = predicted, None, None, False, False
         if self.uses_odometry and self.reference is not None:
+            self._current = self._source_and_pyramid(view, K)
             pose, odometry, recovered = self._odometry(view, previous[-1], predicted, poses, K)
             lost = not odometry.ok
+            refused = lost or self._too_far(*pose_jump(pose, predicted))
+            timed = predict_pose(previous, self.cfg.motion_model, steps) if refused else predicted
+            if not torch.equal(timed, predicted):  # frames dropped or late: again, the velocity over the time that passed
+                again = self._odometry(view, previous[-1], timed, poses, K)
+                if again[1].ok and not self._too_far(*pose_jump(again[0], timed)):
+                    (pose, odometry, recovered), predicted, lost = again, timed, False
         if not lost and self.cfg.method in ("field", "odometry+field"):
             start = dataclasses.replace(view, pose=pose)
             pose, field_stats = track_frame(field, start, K, self.render, self.weights, self.field_cfg, generator)
             lost = self.cfg.method == "field" and field_stats.inlier_ratio < self.field_cfg.min_inlier_ratio
         jump_m, jump_deg = pose_jump(pose, predicted)
-        lost = lost or jump_m > self.cfg.max_jump_m or jump_deg > self.cfg.max_jump_deg
+        lost = lost or self._too_far(jump_m, jump_deg)
         status = TrackStatus.LOST if lost else TrackStatus.RECOVERED if recovered else TrackStatus.TRACKED
         final = predicted if lost else orthonormalize_pose(pose)
         return TrackResult(status, final, predicted, odometry, field_stats, jump_m, jump_deg)
 
+    def _too_far(self, metres: float, degrees: float) -> bool:
+        """Whether a pose that far from its prediction is a jump (max_jump_m / max_jump_deg)."""
+        return metres > self.cfg.max_jump_m or degrees > self.cfg.max_jump_deg
+
     def _odometry(
         self, view: View, last: torch.Tensor, predicted: torch.Tensor, poses: PoseLookup, K: torch.Tensor
     ) -> tuple[torch.Tensor, OdometryResult, bool]:
+        """This frame (its pyramid ``self._current``) aligned to the reference from ``predicted``,
+        else from ``last`` with the wider basin: (c2w, the alignment, whether the retry held it)."""
         ref = self.reference
         ref_pose = poses.pose(ref.frame_id).double()
-        self._current = self._source_and_pyramid(view, K)
         current = self._current[1]
         to_ref = invert_pose(ref_pose)
         result = track_pyramids(ref.pyramid, current, to_ref @ predicted.double(), self.odometry, also=self._companions(view, ref, ref_pose, predicted, poses, K))

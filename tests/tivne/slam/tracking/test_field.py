@@ -52,6 +52,17 @@ def test_predict_pose_constant_velocity():
     torch.testing.assert_close(predict_pose([T0, T0], "constant_velocity"), T0, atol=1e-6, rtol=0)
 
 
+def test_predict_pose_carries_the_velocity_over_the_time_to_the_frame():
+    step = se3_exp(twist(4, 0.02, 0.01))
+    T0 = se3_exp(twist(5, 0.5, 0.4))
+    T1 = step @ T0
+    # three frames dropped: the prediction is four steps on, not one; half an interval: half a step
+    torch.testing.assert_close(predict_pose([T0, T1], "constant_velocity", 4.0), step @ step @ step @ step @ T1, atol=1e-5, rtol=0)
+    half = predict_pose([T0, T1], "constant_velocity", 0.5)
+    torch.testing.assert_close(predict_pose([T1, half], "constant_velocity", 1.0), step @ T1, atol=1e-5, rtol=0)
+    torch.testing.assert_close(predict_pose([T0, T1], "zero", 4.0), T1)  # zero motion stays zero
+
+
 def test_tracking_config_validation():
     with pytest.raises(ValueError, match="field_tracking.query_time"):
         FieldTrackingConfig(query_time="now")

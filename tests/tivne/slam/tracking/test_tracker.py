@@ -16,7 +16,7 @@ from tivne.field.networks import TimeVaryingField
 from tivne.geometry import invert_pose, se3_exp
 from tivne.render.rays import View
 from tivne.slam.tracking import TrackStatus
-from tivne.slam.tracking.tracker import Tracker, pose_jump, reference_to_drop
+from tivne.slam.tracking.tracker import Tracker, pose_jump, reference_to_drop, velocity_steps
 
 W, H = 160, 120
 
@@ -24,14 +24,18 @@ W, H = 160, 120
 class Poses:
     """A PoseLookup over a plain list (index = frame id)."""
 
-    def __init__(self, poses: list[torch.Tensor]) -> None:
+    def __init__(self, poses: list[torch.Tensor], times: list[float] | None = None) -> None:
         self.list = poses
+        self.times = [i / 30 for i in range(len(poses))] if times is None else times  # frame_at's timestamps
 
     def pose(self, frame_id: int) -> torch.Tensor:
         return self.list[frame_id].double()
 
     def recent(self, n: int) -> list[torch.Tensor]:
         return [p.double() for p in self.list[-n:]]
+
+    def recent_times(self, n: int) -> list[float]:
+        return self.times[-n:]
 
 
 @pytest.fixture(scope="module")
@@ -99,6 +103,24 @@ def test_a_frame_that_jumps_is_lost_and_keeps_the_prediction_not_identity(room, 
     assert torch.allclose(result.pose, predicted, atol=1e-5)  # the motion model's guess, flagged
     assert not torch.allclose(result.pose, torch.eye(4), atol=1e-3)
     assert tracker.counts.lost == 1 and "warning: frame 2" in capsys.readouterr().err  # the tracker's own warning line
+
+
+@pytest.mark.parametrize("dropped", [0, 9])
+def test_a_frame_after_dropped_frames_is_predicted_over_the_time_between_them(room, dropped):
+    # the camera slides 1 cm a frame; frames 2..10 never arrive (a stalled recorder) or all do
+    tracker = make_tracker(max_jump_m=0.03)
+    K = room.intrinsics.K()
+    world = invert_pose(room.camera_pose(0))
+    slid = [room.camera_pose(0) @ se3_exp(torch.tensor([0.01 * i, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=torch.float64)) for i in range(12)]
+    first = frame_at(room, slid[0], 0)
+    tracker.update_reference(view_of(first, torch.eye(4)), K, track(tracker, first, [], K), is_keyframe=True)
+    poses = [(world @ slid[i]).float() for i in (0, 1)]
+    arrives = 2 + dropped
+    frame = dataclasses.replace(frame_at(room, slid[arrives], arrives), index=2)
+    assert velocity_steps(Poses(poses).recent_times(2), float(frame.timestamp)) == pytest.approx(1 + dropped)
+    result = tracker.track(2, frame, 0.0, None, TimeVaryingField(), Poses(poses), K, 0.0)
+    t_err, r_err = pose_jump(result.pose, (world @ slid[arrives]).float())
+    assert result.status is TrackStatus.TRACKED and result.jump_m < 0.005 and t_err < 2e-3 and r_err < 0.1, (t_err, result.describe())
 
 
 def test_field_tracker_alone_reports_loss_by_inlier_ratio(room):
