@@ -66,14 +66,17 @@ def map_depth_error(loop, view: View) -> float:
 class GTPoses:
     """A PoseLookup over ground-truth poses (oracle mode: the motion model starts from GT)."""
 
-    def __init__(self, poses: list[torch.Tensor]) -> None:
-        self.poses = poses
+    def __init__(self, poses: list[torch.Tensor], times: list[float]) -> None:
+        self.poses, self.times = poses, times
 
     def pose(self, frame_id: int) -> torch.Tensor:
         return self.poses[frame_id]
 
     def recent(self, n: int) -> list[torch.Tensor]:
         return self.poses[-n:]
+
+    def recent_times(self, n: int) -> list[float]:
+        return self.times[-n:]
 
 
 class Probe:
@@ -89,7 +92,7 @@ class Probe:
         if index == 0:
             return self.track(index, frame, tau, mask, field, poses, K, last_mapped_tau, generator)
         gt_k = self.gt[index].to(frame.depth.device)
-        lookup = GTPoses([p.to(frame.depth.device) for p in self.gt[:index]]) if self.oracle else poses
+        lookup = GTPoses([p.to(frame.depth.device) for p in self.gt[:index]], poses.recent_times(index)) if self.oracle else poses
         init = predict_pose([p.float() for p in lookup.recent(2)], tracker.cfg.motion_model)
         row = {"frame": index, "step_deg": pose_error(self.gt[index], self.gt[index - 1])[0], "step_cm": pose_error(self.gt[index], self.gt[index - 1])[1]}
         row["init_deg"], row["init_cm"] = pose_error(init, gt_k)
