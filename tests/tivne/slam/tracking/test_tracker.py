@@ -118,7 +118,7 @@ def test_a_frame_after_dropped_frames_is_predicted_over_the_time_between_them(ro
     arrives = 2 + dropped
     frame = dataclasses.replace(frame_at(room, slid[arrives], arrives), index=2)
     assert velocity_steps(Poses(poses).recent_times(2), float(frame.timestamp)) == pytest.approx(1 + dropped)
-    result = tracker.track(2, frame, 0.0, None, TimeVaryingField(), Poses(poses), K, 0.0)
+    result = track(tracker, frame, poses, K)
     t_err, r_err = pose_jump(result.pose, (world @ slid[arrives]).float())
     assert result.status is TrackStatus.TRACKED and result.jump_m < 0.005 and t_err < 2e-3 and r_err < 0.1, (t_err, result.describe())
 
