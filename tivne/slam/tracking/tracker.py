@@ -197,9 +197,9 @@ class Tracker:
             refused = lost or self._too_far(*pose_jump(pose, predicted))
             timed = predict_pose(previous, self.cfg.motion_model, steps) if refused else predicted
             if not torch.equal(timed, predicted):  # frames dropped or late: again, the velocity over the time that passed
-                again = self._odometry(view, previous[-1], timed, poses, K)
-                if again[1].ok and not self._too_far(*pose_jump(again[0], timed)):
-                    (pose, odometry, recovered), predicted, lost = again, timed, False
+                carried_pose, carried, carried_recovered = self._odometry(view, previous[-1], timed, poses, K)
+                if carried.ok and not self._too_far(*pose_jump(carried_pose, timed)):
+                    pose, odometry, recovered, predicted, lost = carried_pose, carried, carried_recovered, timed, False
         if not lost and self.cfg.method in ("field", "odometry+field"):
             start = dataclasses.replace(view, pose=pose)
             pose, field_stats = track_frame(field, start, K, self.render, self.weights, self.field_cfg, generator)
