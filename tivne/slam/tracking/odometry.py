@@ -114,14 +114,14 @@ def _source(level: PyramidLevel, max_points: float, T_rgb_depth: torch.Tensor | 
         grid = torch.zeros_like(sel)
         grid[::stride, ::stride] = True
         sel = sel & grid
-    points, normals, intensity = level.geometry[1:4, sel], level.geometry[4:7, sel], level.intensity[sel]
+    (points, normals), intensity = level.points(sel), level.intensity[sel]
     if T_rgb_depth is None:
         return _Source(points, intensity, normals, torch.ones_like(intensity, dtype=torch.bool))
     # Depth taken at another time than colour: move the points to the colour time, read their colour there.
     R, t = T_rgb_depth[:3, :3].to(points), T_rgb_depth[:3, 3].to(points)
     points, normals = R @ points + t[:, None], R @ normals
     uv, z = project(points.T, level.K)
-    intensity = _sample(level.warp_image[:, :1], uv.T)[0]
+    intensity = _sample(level.intensity[None, None], uv.T)[0]
     return _Source(points, intensity, normals, _in_image(uv.T, z, sel.shape, min_depth))
 
 

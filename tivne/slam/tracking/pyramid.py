@@ -8,7 +8,7 @@ pixels or across depth edges; dynamic (masked) pixels are removed before any dow
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 import torch.nn.functional as F
@@ -18,26 +18,39 @@ from data_modules.sensor import KINECT_SIGMA, kinect_depth_sigma
 Coeffs = tuple[float, float, float]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PyramidLevel:
     """One RGB-D pyramid level, H x W pixels.
 
-    K (3, 3); intensity (H, W) in [0, 1]; warp_image (1, 3, H, W) = [I, ∂I/∂u, ∂I/∂v] for bilinear
-    sampling; geometry (7, H, W) = [depth (0 = invalid), vertex (3), unit normal facing the camera (3),
-    zero where undefined], packed so one gather serves a correspondence; usable (H, W) bool = depth in
-    range and not dynamic.
+    K (3, 3); intensity (H, W) in [0, 1]; depth (H, W) metres, 0 = invalid or dynamic; usable (H, W)
+    bool = depth in range and not dynamic; depth_sigma: the (a, b, z0) of the depth noise that sets
+    where a normal crosses a depth edge. What only a reference is read for is built at its first
+    read, once (a frame tracked against a reference never needs it; it is half the pyramid's time):
+    warp_image (1, 3, H, W) = [I, ∂I/∂u, ∂I/∂v] for bilinear sampling, geometry (7, H, W) = [depth,
+    vertex (3), unit normal facing the camera (3), zero where undefined], packed so one gather serves
+    a correspondence. A tracked frame reads its sampled pixels' vertices and normals (:meth:`points`).
     """
 
     K: torch.Tensor
     intensity: torch.Tensor
-    warp_image: torch.Tensor
-    geometry: torch.Tensor
+    depth: torch.Tensor
     usable: torch.Tensor
+    depth_sigma: Coeffs = KINECT_SIGMA
+    _built: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
 
     @property
-    def depth(self) -> torch.Tensor:
-        """(H, W) metres, 0 = invalid or dynamic."""
-        return self.geometry[0]
+    def warp_image(self) -> torch.Tensor:
+        if "warp_image" not in self._built:
+            self._built["warp_image"] = torch.cat([self.intensity[None], image_gradients(self.intensity)])[None]
+        return self._built["warp_image"]
+
+    @property
+    def geometry(self) -> torch.Tensor:
+        if "geometry" not in self._built:
+            vertices = self._vertex_map()
+            normals = vertex_normals(vertices, self.usable, float(self.K[0, 0]), self.depth_sigma)
+            self._built["geometry"] = torch.cat([self.depth[None], vertices, normals])
+        return self._built["geometry"]
 
     @property
     def vertices(self) -> torch.Tensor:
@@ -48,6 +61,46 @@ class PyramidLevel:
     def normals(self) -> torch.Tensor:
         """(H, W, 3) unit normals facing the camera, zero where undefined."""
         return self.geometry[4:7].permute(1, 2, 0)
+
+    def points(self, pixels: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Vertices (3, N) and normals (3, N) of the N ``pixels`` (H, W) bool, in row-major order: read
+        from the geometry where it is built, else computed at those pixels and their four neighbours
+        alone (the same values)."""
+        if "geometry" in self._built:
+            return self.geometry[1:4, pixels], self.geometry[4:7, pixels]
+        h, w = self.depth.shape
+        at = torch.nonzero(pixels.flatten()).squeeze(1)
+        rows, cols = at // w, at % w
+        depth, usable = F.pad(self.depth, (1, 1, 1, 1)).flatten(), F.pad(self.usable, (1, 1, 1, 1)).flatten()
+        K, dtype = self.K, self.depth.dtype
+
+        def vertex(dy: int, dx: int) -> tuple[torch.Tensor, torch.Tensor]:  # (3, N) and (N,) of the pixels (dy, dx) away
+            padded = (rows + 1 + dy) * (w + 2) + cols + 1 + dx
+            z, u, v = depth.index_select(0, padded), (cols + dx).to(dtype), (rows + dy).to(dtype)
+            return torch.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z]), usable.index_select(0, padded)
+
+        centre, valid = vertex(0, 0)
+        sides = [vertex(dy, dx) for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0))]
+        normals = facing_normals(centre, valid, [v for v, _ in sides], [m for _, m in sides], float(K[0, 0]), self.depth_sigma)
+        return centre, normals
+
+    @property
+    def is_built(self) -> bool:
+        """Whether the warp image and the geometry are built."""
+        return "warp_image" in self._built and "geometry" in self._built
+
+    def built(self) -> PyramidLevel:
+        """This level with its warp image and geometry built (a reference's, before it is read in another thread)."""
+        self.warp_image, self.geometry  # noqa: B018 (built on read)
+        return self
+
+    def _vertex_map(self) -> torch.Tensor:
+        """(3, H, W) camera-frame points of the depth map."""
+        h, w = self.depth.shape
+        u = torch.arange(w, dtype=self.depth.dtype, device=self.depth.device)
+        v = torch.arange(h, dtype=self.depth.dtype, device=self.depth.device)[:, None]
+        K = self.K
+        return torch.stack([(u - K[0, 2]) / K[0, 0] * self.depth, (v - K[1, 2]) / K[1, 1] * self.depth, self.depth])
 
 
 def _blocks(x: torch.Tensor) -> tuple[torch.Tensor, ...]:
@@ -117,17 +170,30 @@ def vertex_normals(vertices: torch.Tensor, valid: torch.Tensor, f: float, coeffs
     """
     v = F.pad(vertices, (1, 1, 1, 1))
     m = F.pad(valid, (1, 1, 1, 1))
-    dx, dy = v[:, 1:-1, 2:] - v[:, 1:-1, :-2], v[:, 2:, 1:-1] - v[:, :-2, 1:-1]
-    z = vertices[2]
+    h, w = valid.shape
+    steps = ((0, 1), (0, -1), (1, 0), (-1, 0))  # right, left, down, up
+    sides = [v[:, 1 + dy : h + 1 + dy, 1 + dx : w + 1 + dx] for dy, dx in steps]
+    sides_valid = [m[1 + dy : h + 1 + dy, 1 + dx : w + 1 + dx] for dy, dx in steps]
+    return facing_normals(vertices, valid, sides, sides_valid, f, coeffs)
+
+
+def facing_normals(
+    centre: torch.Tensor, valid: torch.Tensor, sides: list[torch.Tensor], sides_valid: list[torch.Tensor], f: float, coeffs: Coeffs
+) -> torch.Tensor:
+    """Unit normals (3, ...) facing the camera of points centre (3, ...) from the central differences
+    of their right, left, down and up neighbours ``sides`` (4 x (3, ...)); zero where a point or a
+    neighbour is not valid (bool (...) each) or a neighbour lies across a depth discontinuity."""
+    right, left, down, up = sides
+    dx, dy = right - left, down - up
+    z = centre[2]
     jump = max_depth_jump(z, f, coeffs)
-    ok = valid.clone()
-    inner, lo, hi = slice(1, -1), slice(0, -2), slice(2, None)
-    for sl in ((inner, hi), (inner, lo), (hi, inner), (lo, inner)):  # right, left, down, up neighbours
-        ok &= m[sl] & ((v[2][sl] - z).abs() <= jump)
+    ok = valid
+    for side, side_valid in zip(sides, sides_valid):
+        ok = ok & side_valid & ((side[2] - z).abs() <= jump)
     n = torch.stack([dx[1] * dy[2] - dx[2] * dy[1], dx[2] * dy[0] - dx[0] * dy[2], dx[0] * dy[1] - dx[1] * dy[0]])
     # 1/|n| with the sign that makes n face the camera; 0 where undefined (norm(dim=0) is slow on CPU).
     inv = torch.rsqrt((n * n).sum(0).clamp_min(1e-24))
-    inv = torch.where((n * vertices).sum(0) > 0, -inv, inv)
+    inv = torch.where((n * centre).sum(0) > 0, -inv, inv)
     return n * torch.where(ok, inv, torch.zeros_like(inv))
 
 
@@ -136,14 +202,7 @@ def _level(
 ) -> PyramidLevel:
     """One pyramid level from its K (3, 3), intensity, depth and dynamic mask (H, W)."""
     usable = (depth >= depth_range[0]) & (depth <= depth_range[1]) & ~dynamic
-    depth = torch.where(usable, depth, torch.zeros_like(depth))
-    h, w = depth.shape
-    u = torch.arange(w, dtype=depth.dtype, device=depth.device)
-    v = torch.arange(h, dtype=depth.dtype, device=depth.device)[:, None]
-    vertices = torch.stack([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth, depth])  # (3, H, W)
-    normals = vertex_normals(vertices, usable, float(K[0, 0]), coeffs)
-    warp_image = torch.cat([intensity[None], image_gradients(intensity)])[None]
-    return PyramidLevel(K, intensity, warp_image, torch.cat([depth[None], vertices, normals]), usable)
+    return PyramidLevel(K, intensity, torch.where(usable, depth, torch.zeros_like(depth)), usable, coeffs)
 
 
 def build_pyramid(
@@ -197,6 +256,8 @@ def crop_pyramid(levels: list[PyramidLevel], keep: torch.Tensor, margin: int = 4
         K = lv.K.clone()
         K[0, 2] -= c
         K[1, 2] -= a
-        out.append(PyramidLevel(K, lv.intensity[a:b, c:d].clone(), lv.warp_image[..., a:b, c:d].clone(),
-                                lv.geometry[:, a:b, c:d].clone(), lv.usable[a:b, c:d].clone()))
+        # the built parts cut from the whole level (normals at the box's edge see pixels outside it)
+        built = {"warp_image": lv.warp_image[..., a:b, c:d].clone(), "geometry": lv.geometry[:, a:b, c:d].clone()}
+        out.append(PyramidLevel(K, lv.intensity[a:b, c:d].clone(), lv.depth[a:b, c:d].clone(), lv.usable[a:b, c:d].clone(),
+                                lv.depth_sigma, built))
     return out

@@ -214,6 +214,27 @@ def test_pyramid_shapes_intrinsics_and_invalid_depth(room):
     assert downsample_mask(torch.tensor([[True, False], [False, False]])).tolist() == [[True]]
 
 
+def test_a_tracked_frame_builds_only_what_it_reads(room):
+    # A frame tracked against a reference reads its sampled pixels' vertices and normals, computed at
+    # those pixels alone; they equal the whole level's, which a reference builds at its first read.
+    (rgb0, d0, m0), (rgb1, d1, _) = view(room, room.camera_pose(0)), view(room, room.camera_pose(0) @ motion(5, 0.02, 2.0))
+    d1 = d1.clone()
+    d1[40:50, 60:90] = 0  # a hole: the normals around it are undefined
+    K, cfg = room.intrinsics.K(), OdometryConfig()
+    ref, cur = frame_pyramid(rgb0, d0, K, cfg, m0), frame_pyramid(rgb1, d1, K, cfg)
+    assert track_pyramids(ref, cur, None, cfg).ok
+    assert all(lv.is_built for lv in ref) and not any(lv.is_built for lv in cur)
+    for lv in cur:
+        pixels = torch.rand(lv.usable.shape, generator=torch.Generator().manual_seed(0)) < 0.5
+        pixels[0], pixels[:, -1] = True, True  # the image border: neighbours outside it
+        vertices, normals = lv.points(pixels)
+        assert not lv.is_built
+        assert torch.equal(vertices, lv.geometry[1:4, pixels]) and torch.equal(normals, lv.geometry[4:7, pixels])
+        undefined = (normals == 0).all(0)
+        assert undefined.any() and not undefined.all()
+        assert torch.equal(lv.points(pixels)[1], normals)  # read from the geometry now
+
+
 def test_a_reference_cut_to_its_object_aligns_as_the_whole_image(room):
     # A stored view of one object keeps its box only: same pixels, rays and values at every level,
     # so aligning the moving cube to it gives the same pose as to the whole image.
