@@ -5,10 +5,9 @@ writes what it holds, and a plain ``for frame in frames: loop.step(frame)`` runs
 
 One frame: masks -> track -> (mask after tracking, revise keyframe masks) -> objects -> keyframe ->
 map -> allocate -> odometry reference -> record. Given the next frame too (``step(frame,
-next_frame)``), the next frame's mask, track and objects run in a worker thread during this frame's
-mapping round where that changes nothing (:attr:`SlamLoop.overlaps`), and this frame's reference
-update in whichever thread had time to spare last frame; the mapping thread keeps the cores the
-worker leaves. Each component owns its settings and its state:
+next_frame)``), this frame's reference update and the next frame's mask, track and objects run in a
+worker thread during this frame's mapping round where that changes nothing (:attr:`SlamLoop.overlaps`);
+the mapping thread keeps the cores the worker leaves. Each component owns its settings and its state:
 
     clock       Clock: the one conversion of timestamps to field time τ (set by the first frame)
     masks       MaskProvider: the motion mask (before or after tracking)
@@ -103,7 +102,6 @@ class SlamLoop:
         self._ahead: _Ahead | None = None  # the next frame, tracked while this one was mapped
         self._worker: ThreadPoolExecutor | None = None
         self._objects_now: dict | None = None  # the object tracker's snapshot while the worker observes the next frame's
-        self._worker_s = self._mapping_s = 0.0  # the worker's last track (without the reference update); the last mapping round's
 
     @property
     def device(self) -> torch.device:
@@ -150,12 +148,9 @@ class SlamLoop:
 
     def _track(self, k: int, frame: Frame, tau: float) -> tuple[torch.Tensor | None, TrackResult]:
         """The frame's motion mask for tracking and its :class:`TrackResult`."""
-        mask = self._tracking_mask(frame)
-        return mask, self.tracker.track(k, frame, tau, mask, self.field, self.poses, self.K, self.last_mapped_tau, self.generator)
-
-    def _tracking_mask(self, frame: Frame) -> torch.Tensor | None:
         # Post-tracking providers lend tracking a prediction (their previous mask) meanwhile.
-        return self.masks.predict(frame) if self.masks.needs_tracked_pose else self.masks(frame, None)
+        mask = self.masks.predict(frame) if self.masks.needs_tracked_pose else self.masks(frame, None)
+        return mask, self.tracker.track(k, frame, tau, mask, self.field, self.poses, self.K, self.last_mapped_tau, self.generator)
 
     def _record(self, frame: Frame, view: View, lost: bool = False) -> None:
         latest = self.keyframes.frame_ids()[-1]
@@ -179,63 +174,31 @@ class SlamLoop:
         return {} if self.objects is None else self.objects.tracks
 
     def _track_ahead(self, k: int, frame: Frame, view: View, result: TrackResult, keyframe: bool, next_frame: Frame) -> Future:
-        """Starts the worker thread on frame k's odometry reference update (``update_reference``) and
-        the track of ``next_frame`` (stream index k + 1). Frame k is recorded first: its pose is final
-        (mapping will not move it) and the reference update reads it. Where the worker's track took
-        longer than this thread's mapping round last frame, this thread makes the reference update
-        (before its mapping round; a new reference's pyramid is built there) while the worker builds
-        the next frame's pyramid, which reads neither reference nor pose: the two threads' shares even
-        out, the order of what each frame reads is the same. The next frame's objects are observed in the worker too where its mask
-        does not wait for the tracked pose (the object tracker reads frames and poses, never the
-        map); the map reads a copy of frame k's tracks meanwhile (:attr:`object_tracks`)."""
+        """In the worker thread: frame k's odometry reference update (``update_reference``), then the
+        track of ``next_frame`` (stream index k + 1). Frame k is recorded first: its pose is final
+        (mapping will not move it) and the reference update reads it. The next frame's objects are
+        observed there too where its mask does not wait for the tracked pose (the object tracker
+        reads frames and poses, never the map); the map reads a copy of frame k's tracks meanwhile
+        (:attr:`object_tracks`)."""
         self._record(frame, view)
         K, tau, threads = self.K, self.clock.tau(next_frame.timestamp), self.tracker.cfg.overlap_threads
         objects_too = self.objects is not None and not self.masks.needs_tracked_pose
         before = self._objects_now = self.objects.snapshot() if objects_too else None
-        switched: Future = Future()
 
-        def update_reference() -> None:
-            try:
-                switched.set_result(self.tracker.update_reference(view, K, result, keyframe, self.poses))
-            except BaseException as error:  # the worker waiting for it raises it too
-                switched.set_exception(error)
-                raise
-
-        def track_next() -> _Ahead:
-            mask = self._tracking_mask(next_frame)
-            prepared = self.tracker.prepare(next_frame, mask, K)
-            reference_switched = switched.result()
+        def work() -> _Ahead:
+            torch.set_num_threads(threads)  # this thread's own OpenMP team: the map keeps the main one
+            switched = self.tracker.update_reference(view, K, result, keyframe, self.poses)
             counts = dataclasses.replace(self.tracker.counts)  # a checkpoint before the next step must not count it
-            next_result = self.tracker.track(k + 1, next_frame, tau, mask, self.field, self.poses, K, self.last_mapped_tau,
-                                             self.generator, prepared)
-            ahead = _Ahead(float(next_frame.timestamp), mask, next_result, counts, reference_switched)
+            mask, next_result = self._track(k + 1, next_frame, tau)
+            ahead = _Ahead(float(next_frame.timestamp), mask, next_result, counts, switched)
             if not objects_too or next_result.lost:
                 return ahead
             observed = tuple(self.objects.observe(next_frame, next_result.pose, tau, mask))
             return dataclasses.replace(ahead, objects=observed, objects_state=before)
 
-        here = self._updates_reference_here()
-
-        def work() -> _Ahead:
-            torch.set_num_threads(threads)  # this thread's own OpenMP team: the map keeps the main one
-            if not here:
-                update_reference()
-            start = time.perf_counter()
-            ahead = track_next()
-            self._worker_s = time.perf_counter() - start
-            return ahead
-
         if self._worker is None:
             self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tivne-track")
-        future = self._worker.submit(work)
-        if here:
-            update_reference()
-        return future
-
-    def _updates_reference_here(self) -> bool:
-        """Whether this thread makes the reference update while the worker starts on the next frame:
-        where the worker's track took longer than this thread's mapping round last frame."""
-        return self._worker_s > self._mapping_s
+        return self._worker.submit(work)
 
     def _integrate(
         self, k: int, view: View, frame: Frame, result: TrackResult, next_frame: Frame | None = None,
@@ -266,14 +229,12 @@ class SlamLoop:
                 view = dataclasses.replace(view, pose=self.keyframes.pose(k).to(view.pose.dtype))
         mapping, ahead, new_reference = None, None, False
         maps = k == 0 or k % self.mapper.cfg.every == 0
-        overlapped = maps and next_frame is not None and self.overlaps
+        if maps and next_frame is not None and self.overlaps:
+            ahead = self._track_ahead(k, frame, view, result, keyframe, next_frame)
         # While the worker tracks, this thread keeps the cores the worker leaves it (oversubscribed
         # OpenMP teams wait on each other).
-        split = max(1, torch.get_num_threads() - self.tracker.cfg.overlap_threads) if overlapped else None
+        split = max(1, torch.get_num_threads() - self.tracker.cfg.overlap_threads) if ahead is not None else None
         with torch_threads(split):
-            if overlapped:
-                ahead = self._track_ahead(k, frame, view, result, keyframe, next_frame)
-            start = time.perf_counter()
             if maps:
                 mapping = self.mapper.map_frame(view, self.keyframes, self.policy, K, self.generator, first=k == 0)
                 self.keyframes.update_poses(mapping.poses)
@@ -282,7 +243,6 @@ class SlamLoop:
                 self.last_mapped_tau = view.tau
             if k > 0:
                 self.allocator.allocate(self.field, view, K)
-            self._mapping_s = time.perf_counter() - start
         if ahead is None:
             new_reference = self.tracker.update_reference(view, K, result, keyframe, self.poses)
         else:

@@ -47,7 +47,7 @@ from data_modules.frame import Frame
 from tivne.config import FieldTrackingConfig, LossWeights, OdometryConfig, RenderConfig, TrackingConfig
 from tivne.field.networks import TimeVaryingField
 from tivne.geometry import invert_pose, orthonormalize_pose, pose_difference
-from tivne.render.rays import View, float_colour
+from tivne.render.rays import View
 from tivne.slam.tracking.field import predict_pose, track_frame
 from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
 from tivne.slam.tracking.overlap import views_seeing
@@ -78,9 +78,6 @@ class PyramidSource:
 
     def pyramid(self, config: OdometryConfig) -> list[PyramidLevel]:
         return frame_pyramid(self.rgb, self.depth, self.K, config, self.dynamic)
-
-
-FramePyramid = tuple[PyramidSource, list[PyramidLevel]]  # a frame's pyramid and what it is built from
 
 
 @dataclass
@@ -152,28 +149,18 @@ class Tracker:
         self.reference: Reference | None = None
         self.stored: list[Reference] = []  # past and current references, oldest first
         self.counts = TrackingCounts()
-        self._current: FramePyramid | None = None  # this frame's, until it becomes a reference or the next comes
+        self._current: tuple[PyramidSource, list[PyramidLevel]] | None = None  # this frame's, until it becomes a reference or the next comes
 
     @property
     def uses_odometry(self) -> bool:
         return self.cfg.method in ("odometry", "odometry+field")
 
-    def prepare(self, frame: Frame, mask: torch.Tensor | None, K: torch.Tensor) -> FramePyramid | None:
-        """The odometry's pyramid of ``frame`` with its motion ``mask`` (None without odometry): built
-        ahead of :meth:`track` (which takes it as ``prepared``) while the reference is still being
-        updated, since it reads neither the reference nor any pose."""
-        if not self.uses_odometry:
-            return None
-        return self._pyramid(frame.rgb, frame.depth, mask, K)
-
     def track(
         self, index: int, frame: Frame, tau: float, mask: torch.Tensor | None, field: TimeVaryingField,
         poses: PoseLookup, K: torch.Tensor, last_mapped_tau: float, generator: torch.Generator | None = None,
-        prepared: FramePyramid | None = None,
     ) -> TrackResult:
         """The pose of the ``index``-th frame of the stream (``tau`` its field time, ``mask`` its
-        motion mask or None). The first frame defines the world frame. ``prepared``: this frame's
-        :meth:`prepare` with the same mask and K (else the pyramid is built here)."""
+        motion mask or None). The first frame defines the world frame."""
         if index == 0:
             eye = torch.eye(4, device=frame.depth.device, dtype=frame.depth.dtype)
             return TrackResult(TrackStatus.TRACKED, eye, eye)
@@ -186,8 +173,7 @@ class Tracker:
         start = time.perf_counter()
         query = last_mapped_tau if self.field_cfg.query_time == "last_mapped" else tau
         steps = velocity_steps(poses.recent_times(2), float(frame.timestamp))
-        view = View(index, query, frame.rgb, frame.depth, mask, previous[-1])
-        result = self._track(view, previous, steps, poses, field, K, generator, prepared)
+        result = self._track(View(index, query, frame.rgb, frame.depth, mask, previous[-1]), previous, steps, poses, field, K, generator)
         self.counts.seconds += time.perf_counter() - start
         self.counts.frames += 1
         self.counts.field_iters += self.field_cfg.iters if self.cfg.reads_map else 0
@@ -199,13 +185,13 @@ class Tracker:
 
     def _track(
         self, view: View, previous: list[torch.Tensor], steps: float, poses: PoseLookup, field: TimeVaryingField, K: torch.Tensor,
-        generator: torch.Generator | None, prepared: FramePyramid | None = None,
+        generator: torch.Generator | None,
     ) -> TrackResult:
         """``steps``: the time since the last frame in durations of the last step (:func:`velocity_steps`)."""
         predicted = predict_pose(previous, self.cfg.motion_model)
         pose, odometry, field_stats, lost, recovered = predicted, None, None, False, False
         if self.uses_odometry and self.reference is not None:
-            self._current = prepared or self._pyramid(view.rgb, view.depth, view.dynamic, K)
+            self._current = self._source_and_pyramid(view, K)
             pose, odometry, recovered = self._odometry(view, previous[-1], predicted, poses, K)
             lost = not odometry.ok
             refused = lost or self._too_far(*pose_jump(pose, predicted))
@@ -281,7 +267,7 @@ class Tracker:
         )
         if not stale:
             return False
-        source, pyramid = self._current or self._pyramid(view.rgb, view.depth, view.dynamic, K)
+        source, pyramid = self._current if self._current is not None else self._source_and_pyramid(view, K)
         known = self._poses_of(self.stored, poses) if poses is not None else None  # the stored references' poses now
         reuse = None
         if known and cfg.reference != "frame":
@@ -291,7 +277,7 @@ class Tracker:
             self.reference = self.stored[reuse]
             self.counts.reused += 1
         else:
-            self.reference = Reference(view.frame_id, [level.built() for level in pyramid], source)  # read from the worker next
+            self.reference = Reference(view.frame_id, [level.built() for level in pyramid], source)  # whole, once
             self.stored.append(self.reference)
             if len(self.stored) > cfg.stored_references:
                 # this frame is not in the trajectory yet: its pose is the view's; without poses the oldest goes
@@ -300,10 +286,9 @@ class Tracker:
         self._current = None
         return True
 
-    def _pyramid(self, rgb: torch.Tensor, depth: torch.Tensor, dynamic: torch.Tensor | None, K: torch.Tensor) -> FramePyramid:
-        """A frame's pyramid (with the recovery's extra level) and what it is built from (rgb (H, W, 3)
-        uint8 or float in [0, 1], depth (H, W), dynamic (H, W) bool or None, K (3, 3))."""
-        source = PyramidSource(float_colour(rgb), depth, dynamic, K)
+    def _source_and_pyramid(self, view: View, K: torch.Tensor) -> tuple[PyramidSource, list[PyramidLevel]]:
+        """This frame's pyramid (with the recovery's extra level) and what it is built from."""
+        source = PyramidSource(view.colour(), view.depth, view.dynamic, K)
         return source, source.pyramid(self.recovery)
 
     @staticmethod

@@ -72,6 +72,7 @@ def test_odometry_tracks_against_the_reference_and_switches_it(room):
     origin = track(tracker, first, [], K)
     assert origin.status is TrackStatus.TRACKED and torch.equal(origin.pose, torch.eye(4))  # the world frame
     assert tracker.update_reference(view_of(first, origin.pose), K, origin, is_keyframe=True) and tracker.reference.frame_id == 0
+    assert all(level.is_built for level in tracker.reference.pyramid)  # a reference's pyramid is built whole, once
     poses = [torch.eye(4)]
     for i in range(1, 4):
         result = track(tracker, frame_at(room, room.camera_pose(i), i), poses, K)
@@ -87,23 +88,6 @@ def test_odometry_tracks_against_the_reference_and_switches_it(room):
     poor = dataclasses.replace(result, odometry=dataclasses.replace(result.odometry, overlap=0.5))
     assert tracker.update_reference(dataclasses.replace(view_of(first, poses[-1]), frame_id=3), K, poor, False)
     assert tracker.reference.frame_id == 3 and not hasattr(tracker.reference, "pose")  # an id: its pose is the trajectory's
-
-
-def test_a_frame_prepared_ahead_tracks_as_one_prepared_in_track(room):
-    # The loop builds the next frame's pyramid while the reference is being updated (prepare): the
-    # same pose. A reference's pyramid is built whole when it becomes one, a tracked frame's in part.
-    K = room.intrinsics.K()
-    first, second = frame_at(room, room.camera_pose(0), 0), frame_at(room, room.camera_pose(1), 1)
-    results = []
-    for ahead in (False, True):
-        tracker = make_tracker()
-        tracker.update_reference(view_of(first, torch.eye(4)), K, track(tracker, first, [], K), is_keyframe=True)
-        assert all(level.is_built for level in tracker.reference.pyramid)
-        prepared = tracker.prepare(second, None, K) if ahead else None
-        results.append(tracker.track(1, second, 0.0, None, TimeVaryingField(), Poses([torch.eye(4)]), K, 0.0, None, prepared))
-        assert prepared is None or not any(level.is_built for level in prepared[1])
-    assert results[1].status is TrackStatus.TRACKED and torch.equal(results[0].pose, results[1].pose)
-    assert make_tracker(method="field").prepare(second, None, K) is None  # no odometry, no pyramid
 
 
 def test_a_frame_that_jumps_is_lost_and_keeps_the_prediction_not_identity(room, capsys):
