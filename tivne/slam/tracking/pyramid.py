@@ -76,8 +76,8 @@ class PyramidLevel:
 
         def vertex(dy: int, dx: int) -> tuple[torch.Tensor, torch.Tensor]:  # (3, N) and (N,) of the pixels (dy, dx) away
             padded = (rows + 1 + dy) * (w + 2) + cols + 1 + dx
-            z, u, v = depth.index_select(0, padded), (cols + dx).to(dtype), (rows + dy).to(dtype)
-            return torch.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z]), usable.index_select(0, padded)
+            points = camera_points((cols + dx).to(dtype), (rows + dy).to(dtype), depth.index_select(0, padded), K)
+            return points, usable.index_select(0, padded)
 
         centre, valid = vertex(0, 0)
         sides = [vertex(dy, dx) for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0))]
@@ -89,18 +89,17 @@ class PyramidLevel:
         """Whether the warp image and the geometry are built."""
         return "warp_image" in self._built and "geometry" in self._built
 
-    def built(self) -> PyramidLevel:
-        """This level with its warp image and geometry built (a reference's, before it is read in another thread)."""
-        self.warp_image, self.geometry  # noqa: B018 (built on read)
-        return self
-
     def _vertex_map(self) -> torch.Tensor:
         """(3, H, W) camera-frame points of the depth map."""
         h, w = self.depth.shape
         u = torch.arange(w, dtype=self.depth.dtype, device=self.depth.device)
         v = torch.arange(h, dtype=self.depth.dtype, device=self.depth.device)[:, None]
-        K = self.K
-        return torch.stack([(u - K[0, 2]) / K[0, 0] * self.depth, (v - K[1, 2]) / K[1, 1] * self.depth, self.depth])
+        return camera_points(u, v, self.depth, self.K)
+
+
+def camera_points(u: torch.Tensor, v: torch.Tensor, z: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """(3, ...) camera-frame points of pixel columns u and rows v (broadcasting to z's (...)) at depths z (...)."""
+    return torch.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z])
 
 
 def _blocks(x: torch.Tensor) -> tuple[torch.Tensor, ...]:

@@ -277,7 +277,7 @@ class Tracker:
             self.reference = self.stored[reuse]
             self.counts.reused += 1
         else:
-            self.reference = Reference(view.frame_id, [level.built() for level in pyramid], source)  # whole, once
+            self.reference = Reference(view.frame_id, pyramid, source)
             self.stored.append(self.reference)
             if len(self.stored) > cfg.stored_references:
                 # this frame is not in the trajectory yet: its pose is the view's; without poses the oldest goes
