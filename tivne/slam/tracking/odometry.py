@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from data_modules.poses import rotation_vector
 from data_modules.sensor import kinect_depth_sigma
 from tivne.config import OdometryConfig
-from tivne.geometry import adjoint_vw, eigen_range, invert_pose, project, se3_step
+from tivne.geometry import adjoint_vw, eigen_range, invert_pose, se3_step
 from tivne.slam.tracking.pyramid import PyramidLevel, build_pyramid
 from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale, subsample
 
@@ -84,30 +84,37 @@ class PosePrior:
 @dataclass(frozen=True)
 class _Source:
     """The current frame's pixels at one level, in its colour camera's frame at the colour timestamp:
-    points (3, N), intensity (N,), normals (3, N), has_colour (N,) bool (the point sees the colour image),
-    parallax (N,) pixels its colour may be off (:func:`parallax_pixels`; None: registered colour)."""
+    points (3, N), intensity (N,), normals (3, N), has_colour (N,) bool (the point sees the colour image), depth_noise (N,)
+    σ(z) of their depths, parallax (N,) pixels its colour may be off (:func:`parallax_pixels`; None: registered colour)."""
 
     points: torch.Tensor
     intensity: torch.Tensor
     normals: torch.Tensor
     has_colour: torch.Tensor
+    depth_noise: torch.Tensor
     parallax: torch.Tensor | None = None
 
 
-def _sample(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-    """Bilinear samples (C, N) of image (1, C, H, W) at pixel coordinates uv (2, N) (zeros outside)."""
+def _sample(image: torch.Tensor, u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Bilinear samples (C, N) of image (1, C, H, W) at pixel coordinates u, v (N,) (zeros outside)."""
     h, w = image.shape[-2:]
-    grid = torch.stack([uv[0] * (2.0 / (w - 1)) - 1, uv[1] * (2.0 / (h - 1)) - 1], -1)
+    grid = torch.stack([u * (2.0 / (w - 1)) - 1, v * (2.0 / (h - 1)) - 1], -1)
     return F.grid_sample(image, grid[None, None], mode="bilinear", align_corners=True)[0, :, 0]
 
 
-def _in_image(uv: torch.Tensor, z: torch.Tensor, shape: tuple[int, ...], min_depth: float) -> torch.Tensor:
+def _project(p: torch.Tensor, K: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Pixel columns u, rows v and depths z (N,) of points p (3, N) (:func:`tivne.geometry.project`'s values)."""
+    zc = p[2].clamp_min(1e-8)
+    return K[0, 0] * p[0] / zc + K[0, 2], K[1, 1] * p[1] / zc + K[1, 2], p[2]
+
+
+def _in_image(u: torch.Tensor, v: torch.Tensor, z: torch.Tensor, shape: tuple[int, ...], min_depth: float) -> torch.Tensor:
     """(N,) bool: in front of the camera and a pixel or more inside the border (gradients there are padding)."""
     h, w = shape
-    return (z > min_depth) & (uv[0] >= 1) & (uv[0] <= w - 2) & (uv[1] >= 1) & (uv[1] <= h - 2)
+    return (z > min_depth) & (u >= 1) & (u <= w - 2) & (v >= 1) & (v <= h - 2)
 
 
-def _source(level: PyramidLevel, max_points: float, T_rgb_depth: torch.Tensor | None, min_depth: float) -> _Source:
+def _source(level: PyramidLevel, max_points: float, T_rgb_depth: torch.Tensor | None, cfg: OdometryConfig) -> _Source:
     sel = level.usable
     stride = math.ceil(math.sqrt(int(sel.sum()) / max(max_points, 1.0))) if max_points > 0 else 1
     if stride > 1:
@@ -116,27 +123,27 @@ def _source(level: PyramidLevel, max_points: float, T_rgb_depth: torch.Tensor | 
         sel = sel & grid
     (points, normals), intensity = level.points(sel), level.intensity[sel]
     if T_rgb_depth is None:
-        return _Source(points, intensity, normals, torch.ones_like(intensity, dtype=torch.bool))
-    # Depth taken at another time than colour: move the points to the colour time, read their colour there.
-    R, t = T_rgb_depth[:3, :3].to(points), T_rgb_depth[:3, 3].to(points)
-    points, normals = R @ points + t[:, None], R @ normals
-    uv, z = project(points.T, level.K)
-    intensity = _sample(level.intensity[None, None], uv.T)[0]
-    return _Source(points, intensity, normals, _in_image(uv.T, z, sel.shape, min_depth))
+        has_colour = torch.ones_like(intensity, dtype=torch.bool)
+    else:  # depth taken at another time than colour: move the points to the colour time, read their colour there
+        R, t = T_rgb_depth[:3, :3].to(points), T_rgb_depth[:3, 3].to(points)
+        points, normals = R @ points + t[:, None], R @ normals
+        u, v, z = _project(points, level.K)
+        intensity, has_colour = _sample(level.intensity[None, None], u, v)[0], _in_image(u, v, z, sel.shape, cfg.min_depth)
+    return _Source(points, intensity, normals, has_colour, kinect_depth_sigma(points[2], cfg.depth_sigma))
 
 
 @dataclass(frozen=True)
 class _Linearisation:
-    """Normal equations H (6, 6), g (6,) float64 at one pose, plus the statistics of OdometryResult."""
+    """Normal equations H (6, 6), g (6,) float64 at one pose, its correspondences, the robust scales used (photometric,
+    geometric); :func:`_result`'s statistics from usable, inliers (N,) bool and each term's (residuals, IRLS weights) or None."""
 
     H: torch.Tensor
     g: torch.Tensor
     num_valid: int
-    num_usable: int
-    num_inliers: int
-    rms_photometric: float
-    rms_geometric: float
-    scales: tuple[torch.Tensor | None, torch.Tensor | None] = (None, None)  # the robust scales used (photometric, geometric)
+    scales: tuple[torch.Tensor | None, torch.Tensor | None]
+    usable: torch.Tensor
+    inliers: torch.Tensor
+    terms: tuple[tuple[torch.Tensor, torch.Tensor] | None, tuple[torch.Tensor, torch.Tensor] | None]
 
 
 def _kernel(e: torch.Tensor, cfg: OdometryConfig) -> torch.Tensor:
@@ -167,18 +174,18 @@ def brightness_gain(ref: torch.Tensor, cur: torch.Tensor, valid: torch.Tensor, l
 
 
 def _photometric(
-    ref: PyramidLevel, src: _Source, p: torch.Tensor, uv: torch.Tensor, dp_dz: torch.Tensor, valid: torch.Tensor, cfg: OdometryConfig,
-    given: torch.Tensor | None = None,
+    ref: PyramidLevel, src: _Source, p: torch.Tensor, uv: tuple[torch.Tensor, torch.Tensor], dp_dz: torch.Tensor, valid: torch.Tensor,
+    cfg: OdometryConfig, given: torch.Tensor | None = None,
 ):
     """Rows (7, N) of :func:`_rows`, normalised weights (N,) (0 where not valid), IRLS weights (N,) and
     the robust scale of the residuals (``given``: that one instead of the residuals' own).
 
-    p (3, N) warped points, uv (2, N) their pixels, dp_dz (3, N) their motion per metre of current depth.
+    p (3, N) warped points, uv their pixel columns and rows (N,), dp_dz (3, N) their motion per metre of current depth.
     The gradient of I_ref(π(p)) w.r.t. p is g = ∇I·∂π/∂p = (I_u f_x, I_v f_y, −(I_u f_x x + I_v f_y y)/z) / z.
     With ``photometric_depth_noise`` each residual's σ² = s² + (g · ∂p/∂z_cur)² σ(z_cur)²: the current
     depth's noise moves the warped pixel, which matters where the reference image has strong gradients.
     """
-    s = _sample(ref.warp_image, uv)  # (3, N): I, ∂I/∂u, ∂I/∂v
+    s = _sample(ref.warp_image, *uv)  # (3, N): I, ∂I/∂u, ∂I/∂v
     valid = valid & src.has_colour
     r = s[0] - src.intensity
     if cfg.brightness_gain and bool(valid.any()):  # an exposure change scales contrast too: I_ref ≈ a·I_cur + b
@@ -191,7 +198,7 @@ def _photometric(
     noise = robust_scale(r, cfg.intensity_sigma_min, valid) if given is None else given
     scale = noise
     if cfg.photometric_depth_noise:  # per pixel: the current depth's noise seen through the gradient
-        scale = torch.hypot(noise, (g * dp_dz).sum(0) * kinect_depth_sigma(src.points[2], cfg.depth_sigma))
+        scale = torch.hypot(noise, (g * dp_dz).sum(0) * src.depth_noise)
     if src.parallax is not None:  # per pixel: where unregistered colour may sit, seen through the gradient
         scale = torch.hypot(scale, src.parallax * torch.hypot(s[1], s[2]))
     rows = _rows(p, g, r)
@@ -260,36 +267,34 @@ def _linearise(
     """
     R, t = T[:3, :3].to(src.points.dtype), T[:3, 3].to(src.points.dtype)
     p = R @ src.points + t[:, None]
-    uv, z = project(p.T, ref.K)
-    uv, RA, pd, uvd, zd = uv.T, None, p, uv.T, z
+    u, v, z = _project(p, ref.K)
+    RA, pd, ud, vd, zd = None, p, u, v, z
+    h, w = ref.intensity.shape
+    inside = _in_image(u, v, z, (h, w), cfg.min_depth)
     if A is not None:
         RA = A[:3, :3].to(p.dtype)
         pd = RA @ p + A[:3, 3].to(p.dtype)[:, None]
-        uvd, zd = project(pd.T, ref.K)
-        uvd = uvd.T
-    h, w = ref.intensity.shape
-    inside = _in_image(uv, z, (h, w), cfg.min_depth)
-    inside = inside if A is None else inside & _in_image(uvd, zd, (h, w), cfg.min_depth)
-    idx = uvd[1].round().long().clamp(0, h - 1) * w + uvd[0].round().long().clamp(0, w - 1)
+        ud, vd, zd = _project(pd, ref.K)
+        inside = inside & _in_image(ud, vd, zd, (h, w), cfg.min_depth)
+    idx = vd.round().long().clamp(0, h - 1) * w + ud.round().long().clamp(0, w - 1)
     geo = ref.geometry.view(7, -1).index_select(1, idx)  # nearest reference pixel (projective association)
     usable = inside & (geo[0] > 0)
     sigma = torch.hypot(kinect_depth_sigma(zd, cfg.depth_sigma), kinect_depth_sigma(geo[0], cfg.depth_sigma))
     dz = ((zd - geo[0]) / sigma).abs()
     valid = usable & (dz <= cfg.outlier_sigmas * robust_scale(dz, 1.0, usable))
     H, g = torch.zeros(6, 6, dtype=torch.float64, device=p.device), torch.zeros(6, dtype=torch.float64, device=p.device)
-    rms, used = [math.nan, math.nan], [None, None]
+    terms, used = [None, None], [None, None]
     if cfg.photometric:
         dp_dz = (p - t[:, None]) / src.points[2]  # the current point moves along its ray with its depth
-        rows, w_norm, rms_w, used[0] = _photometric(ref, src, p, uv, dp_dz, valid, cfg, scales[0])
+        rows, w_norm, rms_w, used[0] = _photometric(ref, src, p, (u, v), dp_dz, valid, cfg, scales[0])
         H, g = normal_equations(rows, w_norm * cfg.photometric_weight)
-        rms[0] = _weighted_rms(rows[6], rms_w)
+        terms[0] = (rows[6], rms_w)
     if cfg.geometric:
         n_cur = (R if RA is None else RA @ R) @ src.normals
         rows, w_norm, rms_w, used[1] = _geometric(n_cur, p, pd, geo, valid, sigma, RA, cfg, scales[1])
         Hk, gk = normal_equations(rows, w_norm)
-        H, g, rms[1] = H + Hk, g + gk, _weighted_rms(rows[6], rms_w)
-    num_inliers = int((usable & (dz <= cfg.inlier_sigmas)).sum())
-    return _Linearisation(H, g, int(valid.sum()), int(usable.sum()), num_inliers, rms[0], rms[1], (used[0], used[1]))
+        H, g, terms[1] = H + Hk, g + gk, (rows[6], rms_w)
+    return _Linearisation(H, g, int(valid.sum()), (used[0], used[1]), usable, usable & (dz <= cfg.inlier_sigmas), (terms[0], terms[1]))
 
 
 def _solve(H: torch.Tensor, g: torch.Tensor, damping: float) -> torch.Tensor:
@@ -371,7 +376,7 @@ def track_pyramids(
     cur_rgb_depth = None if cur_rgb_depth is None else cur_rgb_depth.to(device, torch.float64)
     iterations, converged, lin, n_src = [], False, None, 0
     for level in reversed(range(min(len(ref), len(cur), config.levels))):
-        src = _source(cur[level], config.max_points / config.coarse_points_ratio**level, cur_rgb_depth, config.min_depth)
+        src = _source(cur[level], config.max_points / config.coarse_points_ratio**level, cur_rgb_depth, config)
         if config.colour_parallax_m:  # once per level: the points do not move between iterations
             src = replace(src, parallax=parallax_pixels(src.points[2], float(cur[level].K[0, 0]), config.colour_parallax_m))
         T, its, converged, lin = _track_level(ref[level], src, T, A, config, prior, tuple((p[level], X) for p, X in also) if level == 0 else ())
@@ -385,8 +390,10 @@ def _result(
 ) -> OdometryResult:
     min_eig, max_eig = eigen_range(lin.H)
     pose_std = 1.0 / math.sqrt(min_eig) if min_eig > 0 else math.inf
-    overlap = lin.num_usable / max(n_src, 1)
-    inlier_ratio = lin.num_inliers / max(lin.num_usable, 1)
+    num_usable = int(lin.usable.sum())
+    overlap = num_usable / max(n_src, 1)
+    inlier_ratio = int(lin.inliers.sum()) / max(num_usable, 1)
+    rms = [math.nan if term is None else _weighted_rms(*term) for term in lin.terms]
     ok = (
         converged
         and lin.num_valid >= cfg.min_correspondences
@@ -400,8 +407,8 @@ def _result(
         num_valid=lin.num_valid,
         overlap=overlap,
         inlier_ratio=inlier_ratio,
-        rms_photometric=lin.rms_photometric,
-        rms_geometric=lin.rms_geometric,
+        rms_photometric=rms[0],
+        rms_geometric=rms[1],
         iterations=iterations,
         min_eigenvalue=min_eig,
         condition=max_eig / min_eig if min_eig > 0 else math.inf,

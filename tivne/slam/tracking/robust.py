@@ -9,8 +9,7 @@ MAD_TO_SIGMA = 1.4826  # MAD of a Gaussian times this is its σ
 
 def huber_weights(e: torch.Tensor, k: float = 1.345) -> torch.Tensor:
     """IRLS weights ρ'(e)/e of the Huber loss on normalised residuals e (...): 1 inside k, k/|e| outside."""
-    a = e.abs()
-    return torch.where(a <= k, torch.ones_like(a), k / a.clamp_min(1e-12))
+    return (k / e.abs().clamp_min(1e-12)).clamp_max(1.0)  # k/|e| ≥ 1 exactly where |e| ≤ k
 
 
 def cauchy_weights(e: torch.Tensor, k: float = 2.3849) -> torch.Tensor:
