@@ -85,10 +85,17 @@ def project(points: torch.Tensor, K: torch.Tensor, eps: float = 1e-8) -> tuple[t
         uv (..., 2) and z (...). Points with z <= eps get uv computed with z clamped to eps.
     """
     z = points[..., 2]
-    zc = z.clamp_min(eps)
-    u = K[0, 0] * points[..., 0] / zc + K[0, 2]
-    v = K[1, 1] * points[..., 1] / zc + K[1, 2]
+    u, v = pixel_coordinates(points[..., 0], points[..., 1], z, K, eps)
     return torch.stack([u, v], dim=-1), z
+
+
+def pixel_coordinates(
+    x: torch.Tensor, y: torch.Tensor, z: torch.Tensor, K: torch.Tensor, eps: float = 1e-8
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pixel column u and row v (...) of camera-frame coordinates x, y, z (...), z clamped to eps: :func:`project`
+    for points kept as separate coordinate rows (no stacking or transposing in a solver's inner loop)."""
+    zc = z.clamp_min(eps)
+    return K[0, 0] * x / zc + K[0, 2], K[1, 1] * y / zc + K[1, 2]
 
 
 def depth_lookup(

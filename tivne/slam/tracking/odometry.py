@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from data_modules.poses import rotation_vector
 from data_modules.sensor import kinect_depth_sigma
 from tivne.config import OdometryConfig
-from tivne.geometry import adjoint_vw, eigen_range, invert_pose, se3_step
+from tivne.geometry import adjoint_vw, eigen_range, invert_pose, pixel_coordinates, se3_step
 from tivne.slam.tracking.pyramid import PyramidLevel, build_pyramid
 from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale, subsample
 
@@ -103,9 +103,8 @@ def _sample(image: torch.Tensor, u: torch.Tensor, v: torch.Tensor) -> torch.Tens
 
 
 def _project(p: torch.Tensor, K: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Pixel columns u, rows v and depths z (N,) of points p (3, N) (:func:`tivne.geometry.project`'s values)."""
-    zc = p[2].clamp_min(1e-8)
-    return K[0, 0] * p[0] / zc + K[0, 2], K[1, 1] * p[1] / zc + K[1, 2], p[2]
+    """Pixel columns u, rows v and depths z (N,) of points p (3, N)."""
+    return *pixel_coordinates(p[0], p[1], p[2], K), p[2]
 
 
 def _in_image(u: torch.Tensor, v: torch.Tensor, z: torch.Tensor, shape: tuple[int, ...], min_depth: float) -> torch.Tensor:
