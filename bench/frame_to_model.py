@@ -50,8 +50,8 @@ def reference_depth(rendered: torch.Tensor, frame: torch.Tensor, mode: str) -> t
     agree = both & ((rendered - frame).abs() <= 3.0 * sigma_pair)
     share = float(agree.sum()) / max(int((frame > 0).sum()), 1)
     offset = float((rendered - frame)[both].median()) if bool(both.any()) else math.nan
-    chosen = {"frame": frame, "agree": torch.where(agree, rendered, frame), "model": torch.where(rendered > 0, rendered, frame)}[mode]
-    return chosen.to(frame.dtype), share, offset
+    use = {"frame": torch.zeros_like(agree), "agree": agree, "model": rendered > 0}[mode]
+    return torch.where(use, rendered, frame).to(frame.dtype), share, offset
 
 
 def measure(root: str, camera: str, frames: int, intrinsics, colour_camera, mode: str) -> dict[str, float]:

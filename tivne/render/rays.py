@@ -10,6 +10,11 @@ import torch
 from tivne.geometry import pixel_to_ray
 
 
+def float_colour(rgb: torch.Tensor) -> torch.Tensor:
+    """(..., 3) colour as float in [0, 1]: uint8 scaled, float as it is."""
+    return rgb.float() / 255.0 if rgb.dtype == torch.uint8 else rgb
+
+
 @dataclass(frozen=True)
 class View:
     """A frame at the field's time ``tau`` with a camera-to-world pose: what tracking, mapping and
@@ -32,7 +37,7 @@ class View:
 
     def colour(self) -> torch.Tensor:
         """(H, W, 3) float colour in [0, 1] (whichever way it is stored)."""
-        return self.rgb.float() / 255.0 if self.rgb.dtype == torch.uint8 else self.rgb
+        return float_colour(self.rgb)
 
 
 @dataclass
@@ -91,7 +96,7 @@ def bundle_rays(views: Sequence[View], pixels: Sequence[torch.Tensor], poses: to
     for v, (view, idx) in enumerate(zip(views, pixels)):
         uv.append(pixel_uv(idx, view.width))
         colour = view.rgb.reshape(-1, 3)[idx]
-        rgb.append(colour.float() / 255.0 if colour.dtype == torch.uint8 else colour)
+        rgb.append(float_colour(colour))
         depth.append(view.depth.reshape(-1)[idx])
         dyn.append(view.dynamic.reshape(-1)[idx] if view.dynamic is not None else torch.zeros_like(idx, dtype=torch.bool))
         tau.append(torch.full_like(depth[-1], view.tau))

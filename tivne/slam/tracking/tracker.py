@@ -80,6 +80,9 @@ class PyramidSource:
         return frame_pyramid(self.rgb, self.depth, self.K, config, self.dynamic)
 
 
+FramePyramid = tuple[PyramidSource, list[PyramidLevel]]  # a frame's pyramid and what it is built from
+
+
 @dataclass
 class Reference:
     """A frame the odometry tracks against: its frame id, pyramid (finest first) and the pyramid's source."""
@@ -149,7 +152,7 @@ class Tracker:
         self.reference: Reference | None = None
         self.stored: list[Reference] = []  # past and current references, oldest first
         self.counts = TrackingCounts()
-        self._current: tuple[PyramidSource, list[PyramidLevel]] | None = None  # this frame's, until it becomes a reference or the next comes
+        self._current: FramePyramid | None = None  # this frame's, until it becomes a reference or the next comes
 
     @property
     def uses_odometry(self) -> bool:
@@ -286,7 +289,7 @@ class Tracker:
         self._current = None
         return True
 
-    def _source_and_pyramid(self, view: View, K: torch.Tensor) -> tuple[PyramidSource, list[PyramidLevel]]:
+    def _source_and_pyramid(self, view: View, K: torch.Tensor) -> FramePyramid:
         """This frame's pyramid (with the recovery's extra level) and what it is built from."""
         source = PyramidSource(view.colour(), view.depth, view.dynamic, K)
         return source, source.pyramid(self.recovery)
