@@ -26,16 +26,27 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 
+MAP_DELTA = 30  # frames between the poses of a pair for the relative-motion map (about 1 s at 30 Hz)
+
+
 def trajectory_figures(est: np.ndarray, gt: np.ndarray) -> dict[str, float]:
-    """ATE (SE(3)-aligned) and per-frame RPE of (N, 4, 4) estimated vs GT c2w poses."""
-    from tivne.metrics.trajectory import absolute_trajectory_error, relative_pose_error
+    """ATE (SE(3)-aligned) and per-frame RPE of (N, 4, 4) estimated vs GT c2w poses, and the linear
+    map of the relative translations over ``MAP_DELTA`` frames (``relative_motion_map``: a map
+    shared by both systems points at the calibration or the ground truth)."""
+    from tivne.metrics.trajectory import absolute_trajectory_error, relative_motion_map, relative_pose_error
 
     ate = absolute_trajectory_error(est, gt, align="se3")
     rpe = relative_pose_error(est, gt, delta=1)
-    return {
+    out = {
         "ate_rmse_m": float(ate.rmse), "ate_mean_m": float(ate.mean), "ate_max_m": float(ate.max),
         "rpe_trans_rmse_m": float(rpe.trans_rmse_m), "rpe_rot_rmse_deg": float(rpe.rot_rmse_deg),
     }
+    try:
+        motion = relative_motion_map(est, gt, delta=min(MAP_DELTA, len(est) - 1))
+    except ValueError:  # too short, or motion along a line or plane only
+        return out
+    return out | {"map_sv_max": float(motion.singular_values[0]), "map_sv_min": float(motion.singular_values[-1]),
+                  "map_trans_rmse_m": motion.trans_rmse_m, "map_fit_rmse_m": motion.fit_rmse_m}
 
 
 def run_open3d(view, voxel_size: float = 3.0 / 512, depth_max: float = 3.0) -> dict[str, float]:

@@ -15,7 +15,11 @@ projective ICP against the ray-cast model) with its example's settings; it is a 
 extra: ``pip install open3d-cpu`` (on Debian it needs ``libusb-1.0-0``).
 
 Prints ATE RMSE / mean / max (SE(3)-aligned to ground truth), RPE per frame, s/frame and peak RSS for
-both, and their ratios. Figures are printed, never asserted.
+both, and their ratios. Also the relative translations over 30 frames against ground truth, before and
+after the one linear map that fits them best, and that map's singular values
+(``tivne.metrics.trajectory.relative_motion_map``): where both systems share a map far from the identity,
+that part of the error is the calibration's or the ground truth's, not either tracker's. Figures are
+printed, never asserted.
 """
 
 from __future__ import annotations
@@ -124,6 +128,8 @@ def table(results: dict[str, dict[str, float] | None]) -> str:
     rows = [
         ("ATE RMSE cm", "ate_rmse_m", 100), ("ATE mean cm", "ate_mean_m", 100), ("ATE max cm", "ate_max_m", 100),
         ("RPE trans cm/frame", "rpe_trans_rmse_m", 100), ("RPE rot deg/frame", "rpe_rot_rmse_deg", 1),
+        ("30-frame rel. translation error cm", "map_trans_rmse_m", 100), ("the same after its best linear map, cm", "map_fit_rmse_m", 100),
+        ("that map's largest σ", "map_sv_max", 1), ("that map's smallest σ", "map_sv_min", 1),
         ("s/frame", "s_per_frame", 1), ("peak RSS MB", "peak_rss_mb", 1), ("frames", "frames", 1),
     ]
     names = [n for n, r in results.items() if r is not None]

@@ -283,3 +283,66 @@ def relative_pose_error(est_poses: ArrayLike, ref_poses: ArrayLike, delta: int =
         rot_errors=rot,
         delta=int(delta),
     )
+
+
+@dataclass(frozen=True)
+class RelativeMotionMap:
+    """The linear map that best takes the reference's relative translations to the estimate's.
+
+    A tracker's own error is mostly random from pair to pair; a calibration or ground-truth mismatch
+    (another focal length, depth scale, or camera frame behind the reference poses) is one linear map
+    for all pairs. Two independent trackers sharing the same map point at the reference, not at
+    either tracker.
+
+    Attributes:
+        matrix: (3, 3) A minimising sum |t_est - A t_ref|² over the pairs (camera frame of the pair's first pose).
+        singular_values: (3,) of A, largest first (all 1 for a pure rotation or the identity).
+        rotation_deg: angle of A's closest rotation (U Vᵀ of its SVD).
+        trans_rmse_m: RMS of |t_est - t_ref| over the pairs; fit_rmse_m: of |t_est - A t_ref|.
+        delta: frame delta of the pairs; pairs: their number.
+    """
+
+    matrix: np.ndarray
+    singular_values: np.ndarray
+    rotation_deg: float
+    trans_rmse_m: float
+    fit_rmse_m: float
+    delta: int
+    pairs: int
+
+
+def relative_motion_map(est_poses: ArrayLike, ref_poses: ArrayLike, delta: int = 30) -> RelativeMotionMap:
+    """:class:`RelativeMotionMap` of associated poses over the pairs ``(i, i + delta)``.
+
+    Args:
+        est_poses: (N, 4, 4) c2w; ref_poses: (N, 4, 4) c2w; delta >= 1, fewer than N.
+    Raises:
+        ValueError: shape mismatch, too few poses, or reference translations that span no 3-D space.
+    """
+    est = _as_np64(est_poses)
+    ref = _as_np64(ref_poses)
+    _check_poses(est, "est_poses")
+    _check_poses(ref, "ref_poses")
+    if len(est) != len(ref):
+        raise ValueError(f"relative_motion_map: {len(est)} estimated but {len(ref)} reference poses")
+    if delta < 1 or len(est) <= delta:
+        raise ValueError(f"relative_motion_map: need more than delta={delta} poses, got {len(est)}")
+    t_est = (np.linalg.inv(est[:-delta]) @ est[delta:])[:, :3, 3]
+    t_ref = (np.linalg.inv(ref[:-delta]) @ ref[delta:])[:, :3, 3]
+    solution, _, rank, _ = np.linalg.lstsq(t_ref, t_est, rcond=None)
+    if rank < 3:
+        raise ValueError("relative_motion_map: the reference's relative translations span fewer than 3 dimensions")
+    A = solution.T
+    U, S, Vt = np.linalg.svd(A)
+    closest = U @ Vt
+    if np.linalg.det(closest) < 0:  # a reflection is no camera motion: flip the weakest axis
+        closest = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+    return RelativeMotionMap(
+        matrix=A,
+        singular_values=S,
+        rotation_deg=float(np.degrees(Rotation.from_matrix(closest).magnitude())),
+        trans_rmse_m=float(np.sqrt(np.mean(np.sum((t_est - t_ref) ** 2, axis=1)))),
+        fit_rmse_m=float(np.sqrt(np.mean(np.sum((t_est - t_ref @ A.T) ** 2, axis=1)))),
+        delta=int(delta),
+        pairs=len(t_ref),
+    )

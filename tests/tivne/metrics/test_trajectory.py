@@ -206,3 +206,43 @@ class TestRPE:
         assert np.allclose(res.rot_errors, 2.0) and np.allclose(res.trans_errors, 0.01)
         with pytest.raises(ValueError):
             M.relative_pose_error(est, ref, delta=5)
+
+
+def translating_poses(n: int, seed: int) -> np.ndarray:
+    """(n, 4, 4) poses with identity rotation at random 3-D positions (camera frame = world frame)."""
+    out = np.tile(np.eye(4), (n, 1, 1))
+    out[:, :3, 3] = np.random.default_rng(seed).normal(size=(n, 3)) * 0.3
+    return out
+
+
+def test_relative_motion_map_of_a_perfect_estimate_is_the_identity():
+    gt = random_walk_poses(80, 3)
+    r = M.relative_motion_map(gt, gt, delta=10)
+    np.testing.assert_allclose(r.matrix, np.eye(3), atol=1e-9)
+    assert r.trans_rmse_m < 1e-12 and r.fit_rmse_m < 1e-12 and r.rotation_deg < 1e-6 and r.pairs == 70
+
+
+def test_relative_motion_map_recovers_a_shared_linear_distortion_and_separates_it_from_noise():
+    gt = translating_poses(200, 4)
+    A = np.diag([1.1, 0.95, 0.9])
+    est = gt.copy()
+    est[:, :3, 3] = gt[:, :3, 3] @ A.T
+    exact = M.relative_motion_map(est, gt, delta=5)
+    np.testing.assert_allclose(exact.singular_values, [1.1, 0.95, 0.9], atol=1e-9)
+    assert exact.fit_rmse_m < 1e-12 < exact.trans_rmse_m
+    # random per-pose error is no linear map: it stays in the fit's residual
+    noisy = est.copy()
+    noisy[:, :3, 3] += np.random.default_rng(5).normal(size=(200, 3)) * 0.01
+    r = M.relative_motion_map(noisy, gt, delta=5)
+    np.testing.assert_allclose(r.singular_values, [1.1, 0.95, 0.9], atol=0.02)
+    assert r.fit_rmse_m == pytest.approx(0.01 * math.sqrt(2 * 3), rel=0.15)
+
+
+def test_relative_motion_map_rejects_too_few_poses_and_degenerate_motion():
+    gt = translating_poses(10, 6)
+    with pytest.raises(ValueError, match="delta=10"):
+        M.relative_motion_map(gt, gt, delta=10)
+    line = np.tile(np.eye(4), (20, 1, 1))
+    line[:, 0, 3] = np.arange(20) * 0.01
+    with pytest.raises(ValueError, match="fewer than 3 dimensions"):
+        M.relative_motion_map(line, line, delta=2)
