@@ -84,6 +84,17 @@ def _check_poses(poses: np.ndarray, name: str) -> None:
         raise ValueError(f"{name}: poses contain NaN or inf")
 
 
+def _paired_poses(est_poses: ArrayLike, ref_poses: ArrayLike, caller: str) -> tuple[np.ndarray, np.ndarray]:
+    """Checked (N, 4, 4) float64 estimated and reference poses, as many of each."""
+    est = _as_np64(est_poses)
+    ref = _as_np64(ref_poses)
+    _check_poses(est, "est_poses")
+    _check_poses(ref, "ref_poses")
+    if len(est) != len(ref):
+        raise ValueError(f"{caller}: {len(est)} estimated but {len(ref)} reference poses")
+    return est, ref
+
+
 @dataclass(frozen=True)
 class ATEResult:
     """Absolute trajectory error (translation part) after aligning the estimate to the reference.
@@ -151,12 +162,7 @@ def absolute_trajectory_error(
     Raises:
         ValueError: shape mismatch, no poses, non-finite poses or an unknown ``align``.
     """
-    est = _as_np64(est_poses)
-    ref = _as_np64(ref_poses)
-    _check_poses(est, "est_poses")
-    _check_poses(ref, "ref_poses")
-    if len(est) != len(ref):
-        raise ValueError(f"absolute_trajectory_error: {len(est)} estimated but {len(ref)} reference poses")
+    est, ref = _paired_poses(est_poses, ref_poses, "absolute_trajectory_error")
     if len(est) == 0:
         raise ValueError("absolute_trajectory_error: no poses")
     p_est, p_ref = est[:, :3, 3], ref[:, :3, 3]
@@ -244,6 +250,14 @@ class RPEResult:
         }
 
 
+def _delta_pairs(est_poses: ArrayLike, ref_poses: ArrayLike, delta: int, caller: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_paired_poses` with more than ``delta`` (>= 1) of each."""
+    est, ref = _paired_poses(est_poses, ref_poses, caller)
+    if delta < 1 or len(est) <= delta:
+        raise ValueError(f"{caller}: need more than delta={delta} poses, got {len(est)}")
+    return est, ref
+
+
 def relative_pose_error(est_poses: ArrayLike, ref_poses: ArrayLike, delta: int = 1) -> RPEResult:
     """RPE of associated poses for consecutive pairs ``(i, i + delta)`` (TUM / evo definition).
 
@@ -261,14 +275,7 @@ def relative_pose_error(est_poses: ArrayLike, ref_poses: ArrayLike, delta: int =
     Raises:
         ValueError: shape mismatch or fewer than ``delta + 1`` poses.
     """
-    est = _as_np64(est_poses)
-    ref = _as_np64(ref_poses)
-    _check_poses(est, "est_poses")
-    _check_poses(ref, "ref_poses")
-    if len(est) != len(ref):
-        raise ValueError(f"relative_pose_error: {len(est)} estimated but {len(ref)} reference poses")
-    if delta < 1 or len(est) <= delta:
-        raise ValueError(f"relative_pose_error: need more than delta={delta} poses, got {len(est)}")
+    est, ref = _delta_pairs(est_poses, ref_poses, delta, "relative_pose_error")
     rel_est = np.linalg.inv(est[:-delta]) @ est[delta:]
     rel_ref = np.linalg.inv(ref[:-delta]) @ ref[delta:]
     E = np.linalg.inv(rel_ref) @ rel_est
@@ -319,14 +326,7 @@ def relative_motion_map(est_poses: ArrayLike, ref_poses: ArrayLike, delta: int =
     Raises:
         ValueError: shape mismatch, too few poses, or reference translations that span no 3-D space.
     """
-    est = _as_np64(est_poses)
-    ref = _as_np64(ref_poses)
-    _check_poses(est, "est_poses")
-    _check_poses(ref, "ref_poses")
-    if len(est) != len(ref):
-        raise ValueError(f"relative_motion_map: {len(est)} estimated but {len(ref)} reference poses")
-    if delta < 1 or len(est) <= delta:
-        raise ValueError(f"relative_motion_map: need more than delta={delta} poses, got {len(est)}")
+    est, ref = _delta_pairs(est_poses, ref_poses, delta, "relative_motion_map")
     t_est = (np.linalg.inv(est[:-delta]) @ est[delta:])[:, :3, 3]
     t_ref = (np.linalg.inv(ref[:-delta]) @ ref[delta:])[:, :3, 3]
     solution, _, rank, _ = np.linalg.lstsq(t_ref, t_est, rcond=None)
