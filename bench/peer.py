@@ -41,9 +41,9 @@ def trajectory_figures(est: np.ndarray, gt: np.ndarray) -> dict[str, float]:
         "ate_rmse_m": float(ate.rmse), "ate_mean_m": float(ate.mean), "ate_max_m": float(ate.max),
         "rpe_trans_rmse_m": float(rpe.trans_rmse_m), "rpe_rot_rmse_deg": float(rpe.rot_rmse_deg),
     }
-    try:
-        motion = relative_motion_map(est, gt, delta=min(MAP_DELTA, len(est) - 1))
-    except ValueError:  # too short, or motion along a line or plane only
+    try:  # the table labels these MAP_DELTA-frame figures: a shorter run has none
+        motion = relative_motion_map(est, gt, delta=MAP_DELTA)
+    except ValueError:  # MAP_DELTA frames or fewer, or motion along a line or plane only
         return out
     return out | {"map_sv_max": float(motion.singular_values[0]), "map_sv_min": float(motion.singular_values[-1]),
                   "map_trans_rmse_m": motion.trans_rmse_m, "map_fit_rmse_m": motion.fit_rmse_m}

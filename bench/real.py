@@ -15,7 +15,7 @@ projective ICP against the ray-cast model) with its example's settings; it is a 
 extra: ``pip install open3d-cpu`` (on Debian it needs ``libusb-1.0-0``).
 
 Prints ATE RMSE / mean / max (SE(3)-aligned to ground truth), RPE per frame, s/frame and peak RSS for
-both, and their ratios. Also the relative translations over 30 frames against ground truth, before and
+both, and their ratios. Also the relative translations over ``MAP_DELTA`` (30) frames against ground truth, before and
 after the one linear map that fits them best, and that map's singular values
 (``tivne.metrics.trajectory.relative_motion_map``): where both systems share a map far from the identity,
 that part of the error is the calibration's or the ground truth's, not either tracker's. Figures are
@@ -36,7 +36,7 @@ REPO = Path(__file__).resolve().parents[1]
 DEFAULT_ROOT = REPO.parent / "shared" / "data" / "tum_fr1_rpy_tail"
 sys.path.insert(0, str(REPO))
 
-from bench.peer import figures_line, run_open3d, spawn, trajectory_figures  # noqa: E402
+from bench.peer import MAP_DELTA, figures_line, run_open3d, spawn, trajectory_figures  # noqa: E402
 
 # The shared real tails (../shared/data/README.md beside the checkout): root folder name, camera, its
 # intrinsics and, for colour not registered to depth, the colour camera (dataset.colour_camera).
@@ -128,7 +128,7 @@ def table(results: dict[str, dict[str, float] | None]) -> str:
     rows = [
         ("ATE RMSE cm", "ate_rmse_m", 100), ("ATE mean cm", "ate_mean_m", 100), ("ATE max cm", "ate_max_m", 100),
         ("RPE trans cm/frame", "rpe_trans_rmse_m", 100), ("RPE rot deg/frame", "rpe_rot_rmse_deg", 1),
-        ("30-frame rel. translation error cm", "map_trans_rmse_m", 100), ("the same after its best linear map, cm", "map_fit_rmse_m", 100),
+        (f"{MAP_DELTA}-frame rel. translation error cm", "map_trans_rmse_m", 100), ("the same after its best linear map, cm", "map_fit_rmse_m", 100),
         ("that map's largest σ", "map_sv_max", 1), ("that map's smallest σ", "map_sv_min", 1),
         ("s/frame", "s_per_frame", 1), ("peak RSS MB", "peak_rss_mb", 1), ("frames", "frames", 1),
     ]
