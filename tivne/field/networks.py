@@ -99,12 +99,16 @@ class FieldOutputs:
     rgb: (P, 3) in [0, 1], 0 outside allocated voxels.
     valid: (P,) bool, inside an allocated voxel.
     offset_sq: (P,) ‖Δe‖², 0 where invalid or without time.
+    parts: None for a single field; for a composition (:mod:`tivne.field.objects`) (P, 2) SDF of
+        its static field and of its objects (the smallest; NaN where no object field is valid), so
+        the SDF loss can supervise the field a ray's mask label names.
     """
 
     sdf: torch.Tensor
     rgb: torch.Tensor
     valid: torch.Tensor
     offset_sq: torch.Tensor
+    parts: torch.Tensor | None = None
 
 
 class TimeVaryingField(nn.Module):

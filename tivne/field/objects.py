@@ -95,7 +95,10 @@ def take_smaller(base: FieldOutputs, idx: torch.Tensor, other: FieldOutputs) -> 
     offset[rows] = other.offset_sq[take]
     valid = base.valid.clone()
     valid[rows] = True
-    return FieldOutputs(sdf=sdf, rgb=rgb, valid=valid, offset_sq=offset)
+    parts = torch.stack([base.sdf, torch.full_like(base.sdf, float("nan"))], -1) if base.parts is None else base.parts.clone()
+    own = torch.where(other.valid, other.sdf, torch.full_like(other.sdf, float("nan")))
+    parts[idx, 1] = torch.fmin(parts[idx, 1], own)
+    return FieldOutputs(sdf=sdf, rgb=rgb, valid=valid, offset_sq=offset, parts=parts)
 
 
 class ObjectField(TimeVaryingField):

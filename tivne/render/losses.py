@@ -14,8 +14,30 @@ def balance_factors(n_free: torch.Tensor, n_trunc: torch.Tensor) -> tuple[torch.
     return 1 - n_free / total, 1 - n_trunc / total
 
 
+def routed_sdf(sdf: torch.Tensor, parts: torch.Tensor, dynamic: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Which field a ray's SDF target supervises in a composition of a static field and objects.
+
+    A ray on a moving object (``dynamic``) regresses the object fields' SDF where one is valid, a
+    static ray the static field's; the other part only must not lie below the target (it may be
+    free where the first one has the surface). Without this the min of the composition hands the
+    target to whichever part is smaller, and a static copy of an object starves the object's own field.
+
+    Args:
+        sdf: (N, M) composed SDF; parts: (N, M, 2) static / object SDF (object NaN where none is
+        valid); dynamic: (N,) bool ray label.
+    Returns:
+        own (N, M): the SDF to regress; other (N, M): the SDF to keep above the target (NaN: none).
+    """
+    static, objects = parts[..., 0], parts[..., 1]
+    on_object = dynamic[:, None] & ~torch.isnan(objects)
+    own = torch.where(on_object, objects, torch.where(dynamic[:, None], sdf, static))
+    other = torch.where(on_object, static, torch.where(dynamic[:, None], torch.full_like(sdf, float("nan")), objects))
+    return own, other
+
+
 def sdf_losses(
-    sdf: torch.Tensor, z: torch.Tensor, depth: torch.Tensor, truncation: float, ray_mask: torch.Tensor | None = None
+    sdf: torch.Tensor, z: torch.Tensor, depth: torch.Tensor, truncation: float, ray_mask: torch.Tensor | None = None,
+    parts: torch.Tensor | None = None, dynamic: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Free-space and SDF losses on samples.
 
@@ -36,7 +58,13 @@ def sdf_losses(
     beta_fs, beta_tr = balance_factors(free.sum().float(), trunc.sum().float())
     slots = sdf.numel()
     fs = ((sdf - 1).pow(2) * free).sum() / slots
-    tr = ((z + sdf * truncation - d).pow(2) * trunc).sum() / slots
+    if parts is None or dynamic is None:
+        tr = ((z + sdf * truncation - d).pow(2) * trunc).sum() / slots
+        return beta_fs * fs, beta_tr * tr
+    own, other = routed_sdf(sdf, parts, dynamic)
+    above = torch.where(torch.isnan(other), torch.full_like(other, 1e3), other)  # NaN: nothing to keep above
+    below = (d - z - above * truncation).clamp_min(0.0)
+    tr = (((z + own * truncation - d).pow(2) + below.pow(2)) * trunc).sum() / slots
     return beta_fs * fs, beta_tr * tr
 
 
@@ -67,7 +95,8 @@ def slam_loss(
     count = m.sum().clamp_min(1)
     color = ((rendered.rgb - rays.rgb).abs().mean(-1) * m).sum() / count
     depth = ((rendered.depth - rays.depth).abs() * m).sum() / count
-    free_space, sdf = sdf_losses(outputs.sdf, z, rays.depth, truncation, ray_mask)
+    routed = (outputs.parts, rays.dynamic) if rays.has_mask else (None, None)
+    free_space, sdf = sdf_losses(outputs.sdf, z, rays.depth, truncation, ray_mask, *routed)
     total = weights.color * color + weights.depth * depth + weights.free_space * free_space + weights.sdf * sdf
     terms = {"color": color, "depth": depth, "free_space": free_space, "sdf": sdf}
     if rays.has_mask and weights.offset > 0:

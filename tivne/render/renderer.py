@@ -88,7 +88,8 @@ def render_samples(
     weights = bell_weights(sdf, 1.0 / truncation) * valid
     weights = weights * first_surface_mask(sdf, z, truncation, valid)
     rendered = composite(weights, rgb, z)
-    return rendered, FieldOutputs(sdf=sdf, rgb=rgb, valid=valid, offset_sq=out.offset_sq.view(n, m))
+    parts = None if out.parts is None else out.parts.view(n, m, 2)
+    return rendered, FieldOutputs(sdf=sdf, rgb=rgb, valid=valid, offset_sq=out.offset_sq.view(n, m), parts=parts)
 
 
 

@@ -102,6 +102,10 @@ def test_composition_is_the_object_field_inside_its_box_where_smaller_and_static
     with static_only(field):
         static = field(pts, taus)
     assert not static.valid[0] and out.sdf[1] == pytest.approx(float(static.sdf[1]))
+    # The parts of the composition: the static field's SDF, and the object's where it is valid (NaN elsewhere).
+    assert out.parts is not None and static.parts is None
+    assert torch.allclose(out.parts[:, 0], static.sdf) and out.parts[0, 1] == pytest.approx(float(obj.sdf[0]))
+    assert torch.isnan(out.parts[1, 1])
     # Unobserved at that time: the object is not placed, the static field alone answers.
     field.set_tracks({1: LinearTrack(seen=(5.0, 6.0))})
     assert not field(pts, taus).valid[0]

@@ -7,7 +7,7 @@ import torch
 
 from tivne.config import LossWeights
 from tivne.field.networks import FieldOutputs
-from tivne.render.losses import balance_factors, robust_ray_mask, sdf_losses, slam_loss
+from tivne.render.losses import balance_factors, robust_ray_mask, routed_sdf, sdf_losses, slam_loss
 from tivne.render.rays import RayBundle
 from tivne.render.renderer import RenderBatch, RenderedRays
 
@@ -85,6 +85,48 @@ def test_sdf_losses_ray_mask_excludes_rays():
     assert float(fs) == pytest.approx(0.0, abs=1e-12) and float(tr) == pytest.approx(0.0, abs=1e-10)
     fs, tr = sdf_losses(sdf, z, depth, TR, ray_mask=torch.tensor([True, True]))
     assert fs > 0 and tr > 0
+
+
+def test_routed_sdf_names_the_field_of_the_ray_label():
+    nan = float("nan")
+    composed = torch.tensor([[0.1], [0.2], [0.3]])
+    parts = torch.tensor([[[0.1, 0.5]], [[0.2, 0.4]], [[0.3, nan]]])  # static / object SDF
+    own, other = routed_sdf(composed, parts, torch.tensor([True, False, True]))
+    # object ray: the object's SDF, even where the static part is the smaller; static ray: the static part
+    assert own[:, 0].tolist() == pytest.approx([0.5, 0.2, 0.3])
+    assert other[0, 0] == pytest.approx(0.1) and other[1, 0] == pytest.approx(0.4)
+    assert torch.isnan(other[2, 0])  # an object ray no object field covers regresses the composition alone
+
+
+def test_routed_sdf_loss_teaches_the_object_its_surface_and_keeps_the_static_part_above_the_target():
+    z, depth = sample_grid()
+    target = perfect_sdf(z, depth, TR)
+    band = (z - depth[:, None]).abs() <= TR
+    dynamic = torch.tensor([True, True])
+    # A static copy of the object (exact) and an object field 0.5 off: only the object part is wrong.
+    static = target.clone().requires_grad_(True)
+    objects = (target + 0.5).requires_grad_(True)
+    parts = torch.stack([static, objects], -1)
+    _, tr = sdf_losses(torch.minimum(static, objects), z, depth, TR, parts=parts, dynamic=dynamic)
+    tr.backward()
+    assert float(tr) > 0 and (objects.grad[band] != 0).all()
+    assert float(static.grad.abs().sum()) == 0.0  # the exact copy is not below the target: no push
+    # Without routing the min hands the whole target to the (already exact) static copy.
+    _, plain = sdf_losses(torch.minimum(target, target + 0.5), z, depth, TR)
+    assert float(plain) == pytest.approx(0.0, abs=1e-10)
+    # A static part below the target on an object ray is pushed up; above it, left alone.
+    static_low = (target - 0.5).requires_grad_(True)
+    parts = torch.stack([static_low, target], -1)
+    _, tr = sdf_losses(torch.minimum(static_low, target), z, depth, TR, parts=parts, dynamic=dynamic)
+    tr.backward()
+    assert float(tr) > 0 and (static_low.grad[band] < 0).all()
+    parts = torch.stack([target + 0.5, target], -1)
+    _, tr = sdf_losses(target, z, depth, TR, parts=parts, dynamic=dynamic)
+    assert float(tr) == pytest.approx(0.0, abs=1e-10)
+    # Static rays: the roles swap.
+    parts = torch.stack([target, target - 0.5], -1)
+    _, tr = sdf_losses(target - 0.5, z, depth, TR, parts=parts, dynamic=~dynamic)
+    assert float(tr) > 0
 
 
 def rendered(depth: torch.Tensor, wsum: torch.Tensor | None = None, rgb: torch.Tensor | None = None) -> RenderedRays:
