@@ -46,6 +46,8 @@ def sdf_losses(
 
     Args:
         sdf: (N, M) truncation units; z: (N, M); depth: (N,) observed; ray_mask: (N,) bool rays to use.
+        parts, dynamic: a composition's (N, M, 2) static / object SDF and the (N,) ray labels: the
+            band then regresses the part :func:`routed_sdf` names and keeps the other above the target.
     Returns:
         (free_space_loss, sdf_loss) scalars.
     """
@@ -62,8 +64,8 @@ def sdf_losses(
         tr = ((z + sdf * truncation - d).pow(2) * trunc).sum() / slots
         return beta_fs * fs, beta_tr * tr
     own, other = routed_sdf(sdf, parts, dynamic)
-    above = torch.where(torch.isnan(other), torch.full_like(other, 1e3), other)  # NaN: nothing to keep above
-    below = (d - z - above * truncation).clamp_min(0.0)
+    # How far the other part lies below the target (0 where it has none: NaN, masked before the arithmetic).
+    below = torch.where(torch.isnan(other), torch.zeros_like(other), (d - z - other * truncation).clamp_min(0.0))
     tr = (((z + own * truncation - d).pow(2) + below.pow(2)) * trunc).sum() / slots
     return beta_fs * fs, beta_tr * tr
 

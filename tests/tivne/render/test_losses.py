@@ -96,6 +96,13 @@ def test_routed_sdf_names_the_field_of_the_ray_label():
     assert own[:, 0].tolist() == pytest.approx([0.5, 0.2, 0.3])
     assert other[0, 0] == pytest.approx(0.1) and other[1, 0] == pytest.approx(0.4)
     assert torch.isnan(other[2, 0])  # an object ray no object field covers regresses the composition alone
+    # Where no object field is valid (NaN) nothing leaks into the loss or the gradients.
+    z, depth = sample_grid()
+    static = torch.zeros_like(z, requires_grad=True)
+    objects = torch.full_like(z, nan)
+    _, tr = sdf_losses(static * 1.0, z, depth, TR, parts=torch.stack([static, objects], -1), dynamic=torch.tensor([False, True]))
+    tr.backward()
+    assert torch.isfinite(tr) and torch.isfinite(static.grad).all() and static.grad.abs().sum() > 0
 
 
 def test_routed_sdf_loss_teaches_the_object_its_surface_and_keeps_the_static_part_above_the_target():
