@@ -96,8 +96,7 @@ def take_smaller(base: FieldOutputs, idx: torch.Tensor, other: FieldOutputs) -> 
     valid = base.valid.clone()
     valid[rows] = True
     parts = torch.stack([base.sdf, torch.full_like(base.sdf, float("nan"))], -1) if base.parts is None else base.parts.clone()
-    own = torch.where(other.valid, other.sdf, torch.full_like(other.sdf, float("nan")))
-    parts[idx, 1] = torch.fmin(parts[idx, 1], own)
+    parts[idx, 1] = torch.fmin(parts[idx, 1], other.sdf.masked_fill(~other.valid, float("nan")))  # fmin: NaN is "none"
     return FieldOutputs(sdf=sdf, rgb=rgb, valid=valid, offset_sq=offset, parts=parts)
 
 

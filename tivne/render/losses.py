@@ -14,7 +14,7 @@ def balance_factors(n_free: torch.Tensor, n_trunc: torch.Tensor) -> tuple[torch.
     return 1 - n_free / total, 1 - n_trunc / total
 
 
-def routed_sdf(sdf: torch.Tensor, parts: torch.Tensor, dynamic: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def routed_sdf(parts: torch.Tensor, dynamic: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Which field a ray's SDF target supervises in a composition of a static field and objects.
 
     A ray on a moving object (``dynamic``) regresses the object fields' SDF where one is valid, a
@@ -23,15 +23,16 @@ def routed_sdf(sdf: torch.Tensor, parts: torch.Tensor, dynamic: torch.Tensor) ->
     target to whichever part is smaller, and a static copy of an object starves the object's own field.
 
     Args:
-        sdf: (N, M) composed SDF; parts: (N, M, 2) static / object SDF (object NaN where none is
-        valid); dynamic: (N,) bool ray label.
+        parts: (N, M, 2) static / object SDF (object NaN where none is valid: the composition there
+        is the static field); dynamic: (N,) bool ray label.
     Returns:
         own (N, M): the SDF to regress; other (N, M): the SDF to keep above the target (NaN: none).
     """
     static, objects = parts[..., 0], parts[..., 1]
-    on_object = dynamic[:, None] & ~torch.isnan(objects)
-    own = torch.where(on_object, objects, torch.where(dynamic[:, None], sdf, static))
-    other = torch.where(on_object, static, torch.where(dynamic[:, None], torch.full_like(sdf, float("nan")), objects))
+    moving = dynamic[:, None].expand_as(static)
+    on_object = moving & ~torch.isnan(objects)
+    own = torch.where(on_object, objects, static)  # a moving ray no object field covers: the static field, as the min
+    other = torch.where(moving, static.masked_fill(~on_object, float("nan")), objects)
     return own, other
 
 
@@ -63,7 +64,7 @@ def sdf_losses(
     if parts is None or dynamic is None:
         tr = ((z + sdf * truncation - d).pow(2) * trunc).sum() / slots
         return beta_fs * fs, beta_tr * tr
-    own, other = routed_sdf(sdf, parts, dynamic)
+    own, other = routed_sdf(parts, dynamic)
     # How far the other part lies below the target (0 where it has none: NaN, masked before the arithmetic).
     below = torch.where(torch.isnan(other), torch.zeros_like(other), (d - z - other * truncation).clamp_min(0.0))
     tr = (((z + own * truncation - d).pow(2) + below.pow(2)) * trunc).sum() / slots

@@ -89,9 +89,8 @@ def test_sdf_losses_ray_mask_excludes_rays():
 
 def test_routed_sdf_names_the_field_of_the_ray_label():
     nan = float("nan")
-    composed = torch.tensor([[0.1], [0.2], [0.3]])
     parts = torch.tensor([[[0.1, 0.5]], [[0.2, 0.4]], [[0.3, nan]]])  # static / object SDF
-    own, other = routed_sdf(composed, parts, torch.tensor([True, False, True]))
+    own, other = routed_sdf(parts, torch.tensor([True, False, True]))
     # object ray: the object's SDF, even where the static part is the smaller; static ray: the static part
     assert own[:, 0].tolist() == pytest.approx([0.5, 0.2, 0.3])
     assert other[0, 0] == pytest.approx(0.1) and other[1, 0] == pytest.approx(0.4)
