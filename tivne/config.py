@@ -242,27 +242,24 @@ class OdometryConfig(Settings):
 
 @dataclass(frozen=True)
 class MappingConfig(Settings):
-    """iters: steps per mapping round of a frame with moving pixels; static_iters: of a frame without (the static map gathers over
-    many frames, a moving object at each time has its own): both real tails at 3 instead of 5 ran 15-20 % faster, same ATE, PSNR
-    -0.03 / +0.4 dB (the final pass, a share of the online steps, shrinks with them). first_iters: steps the first frame's map gets
-    in all, first_now of them on the first frame alone (so it returns in about a second), the rest added to the next rounds, at most
-    iters more each; only with ``tracking.method=odometry``, which does not read the map (else all first_iters at once). rays per step,
-    current_share of them from the current frame, the rest split over the picked keyframes. every:
-    map every n-th frame. Every frame mapped (5 steps where objects move): each frame's track overlaps a mapping round
-    (``tracking.overlap``); 5 instead of 10 steps took 30-55 % off s/frame (scene family, cube, real
-    tails) with the same camera ATE, object Chamfer within 0.1 cm but for the breathing blob's first
-    mesh (1.1 -> 1.5 cm), PSNR 0.3-0.9 dB lower (``experiment=quality`` takes 20). threads: torch's
-    threads for the steps (null: the process's): a step is a few hundred small ops, each a parallel
-    region whose waking threads cost more than they share, and the next frame's track wants a core of
-    its own. optimize_poses: refine the window's poses (never the first frame's; on, 20 Adam steps per
-    round added noise here: 2.6 vs 1.0 cm peak error over 40 frames). The final pass: after the
-    sequence, steps over the whole keyframe set (windows of final_window keyframes, poses fixed),
-    because the online window rarely revisits early and middle times: final_share of the steps
-    mapping took online, at most final_iters (so it stays a small part of the run; 0 = off).
-    Adaptive rounds (settle_share > 0): a round whose current frame the map explains (at its first step, settle_share of its
-    rays render a depth within settle_sigmas σ(z), the Kinect noise, of the measured one) stops after settle_iters steps. Off:
-    iters=10 settled at 5 gave the breathing blob a better first mesh (1.3 vs 1.5 cm at 5 steps) but few rounds settle where
-    objects move or depth is real (s/frame cube 0.128 -> 0.186, fr1 tail 0.093 -> 0.144, same ATE)."""
+    """iters: steps per mapping round of a frame with moving pixels; static_iters: of a frame without (the static map gathers over many
+    frames, a moving object at each time has its own): both real tails at 3 instead of 5 ran 15-20 % faster, same ATE, PSNR -0.03 /
+    +0.4 dB (the final pass, a share of the online steps, shrinks with them). first_iters: steps the first frame's map gets in all,
+    first_now of them on the first frame alone (so it returns in about a second), the rest added to the next rounds, at most iters
+    more each; only with ``tracking.method=odometry``, which does not read the map (else all first_iters at once). rays per step,
+    current_share of them from the current frame, the rest split over the picked keyframes. every: map every n-th frame. Every frame
+    mapped (5 steps where objects move): each frame's track overlaps a mapping round (``tracking.overlap``); 5 instead of 10 steps
+    took 30-55 % off s/frame (scene family, cube, real tails) with the same camera ATE, object Chamfer within 0.1 cm but for the
+    breathing blob's first mesh (1.1 -> 1.5 cm), PSNR 0.3-0.9 dB lower (``experiment=quality`` takes 20). threads: torch's threads
+    for the steps (null: the process's): a step is a few hundred small ops, each a parallel region whose waking threads cost more
+    than they share, and the next frame's track wants a core of its own. optimize_poses: refine the window's poses (never the first
+    frame's; on, 20 Adam steps per round added noise here: 2.6 vs 1.0 cm peak error over 40 frames). The final pass: after the
+    sequence, steps over the whole keyframe set (windows of final_window keyframes, poses fixed), because the online window rarely
+    revisits early and middle times: final_share of the steps mapping took online, at most final_iters (so it stays a small part of
+    the run; 0 = off). Adaptive rounds (settle_share > 0): a round whose current frame the map explains (at its first step,
+    settle_share of its rays render a depth within settle_sigmas σ(z), the Kinect noise, of the measured one) stops after
+    settle_iters steps. Off: iters=10 settled at 5 gave the breathing blob a better first mesh (1.3 vs 1.5 cm at 5 steps) but few
+    rounds settle where objects move or depth is real (s/frame cube 0.128 -> 0.186, fr1 tail 0.093 -> 0.144, same ATE)."""
 
     section: ClassVar[str] = "mapping"
     iters: int = setting(5, ge=1)
@@ -307,12 +304,15 @@ class KeyframeConfig(Settings):
 class SamplerConfig(Settings):
     """Mapping's pixel sampler: dynamic_share of the rays from dynamic (masked) pixels; 0 = uniform, mask_weighted over-samples
     moving objects so the field learns them from the few pixels they cover. mask_edge: no ray from a pixel within this many pixels
-    of a motion mask's edge (either side), where depth and colour mix an object with what is behind it (0: off; 1 was mixed)."""
+    of a motion mask's edge (either side), where depth and colour mix an object with what is behind it (0: off; 1 was mixed).
+    label_edge: rays within this many pixels of it regress the composition's SDF, not the part their label names
+    (:func:`tivne.render.losses.routed_sdf`; ``field=objects`` with masks): there depth jitter mixes the labels."""
 
     section: ClassVar[str] = "sampler"
     name: str = "mask_weighted"
     dynamic_share: float = setting(0.3, ge=0, le=1)
     mask_edge: int = setting(0, ge=0)
+    label_edge: int = setting(2, ge=0)
 
 
 @dataclass(frozen=True)

@@ -24,3 +24,18 @@ def edge_band(mask: torch.Tensor, radius: int) -> torch.Tensor:
     """(H, W) bool: the pixels within ``radius`` pixels of both a True and a False pixel of ``mask``,
     i.e. the band along its edges, on both sides; all False for radius 0."""
     return dilate(mask, radius) & dilate(~mask, radius)
+
+
+def edge_band_at(mask: torch.Tensor, pixels: torch.Tensor, radius: int) -> torch.Tensor:
+    """:func:`edge_band` read at a few pixels without computing it for the image (a 640x480 band costs
+    ~16 ms, this ~(2 radius + 1)^2 lookups per pixel). mask: (H, W) bool; pixels: (n,) flat indices.
+    Returns (n,) bool: whether each pixel's square window holds both a True and a False pixel."""
+    if radius <= 0:
+        return torch.zeros_like(pixels, dtype=torch.bool)
+    h, w = mask.shape
+    steps = torch.arange(-radius, radius + 1, device=pixels.device)
+    # Clamped to the image: a clamped neighbour is still inside the window, so nothing beyond the image counts.
+    rows = ((pixels // w)[:, None, None] + steps[None, :, None]).clamp(0, h - 1)
+    cols = ((pixels % w)[:, None, None] + steps[None, None, :]).clamp(0, w - 1)
+    window = mask[rows, cols].reshape(len(pixels), (2 * radius + 1) ** 2)
+    return window.any(1) & ~window.all(1)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from tivne.morphology import dilate, edge_band, erode
+from tivne.morphology import dilate, edge_band, edge_band_at, erode
 
 
 def block(h: int = 12, w: int = 16) -> torch.Tensor:
@@ -43,3 +43,13 @@ def test_edge_band_is_what_eroding_the_mask_and_its_complement_take():
     for r in (1, 2):
         assert torch.equal(edge_band(mask, r), ~(erode(mask, r) | erode(~mask, r)))
     assert not edge_band(mask, 0).any()
+
+
+def test_edge_band_at_reads_the_band_at_pixels_also_at_the_image_border():
+    gen = torch.Generator().manual_seed(0)
+    mask = torch.rand(23, 31, generator=gen) > 0.7
+    mask[:, :4] = True  # a mask reaching the image border
+    pixels = torch.arange(mask.numel())
+    for radius in (0, 1, 2, 3):
+        assert torch.equal(edge_band_at(mask, pixels, radius), edge_band(mask, radius).reshape(-1))
+    assert edge_band_at(mask, pixels[:0], 2).shape == (0,)

@@ -14,17 +14,21 @@ def balance_factors(n_free: torch.Tensor, n_trunc: torch.Tensor) -> tuple[torch.
     return 1 - n_free / total, 1 - n_trunc / total
 
 
-def routed_sdf(parts: torch.Tensor, dynamic: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def routed_sdf(
+    parts: torch.Tensor, dynamic: torch.Tensor, unsure: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Which field a ray's SDF target supervises in a composition of a static field and objects.
 
     A ray on a moving object (``dynamic``) regresses the object fields' SDF where one is valid, a
     static ray the static field's; the other part only must not lie below the target (it may be
     free where the first one has the surface). Without this the min of the composition hands the
     target to whichever part is smaller, and a static copy of an object starves the object's own field.
+    A ray whose label is ``unsure`` (along a mask's edge, where depth jitter mixes the labels) regresses
+    the composition (the min) as before routing, so a wrong label pushes neither part.
 
     Args:
         parts: (N, M, 2) static / object SDF (object NaN where none is valid: the composition there
-        is the static field); dynamic: (N,) bool ray label.
+        is the static field); dynamic: (N,) bool ray label; unsure: (N,) bool or None (all sure).
     Returns:
         own (N, M): the SDF to regress; other (N, M): the SDF to keep above the target (NaN: none).
     """
@@ -33,12 +37,16 @@ def routed_sdf(parts: torch.Tensor, dynamic: torch.Tensor) -> tuple[torch.Tensor
     on_object = moving & ~torch.isnan(objects)
     own = torch.where(on_object, objects, static)  # a moving ray no object field covers: the static field, as the min
     other = torch.where(moving, static.masked_fill(~on_object, float("nan")), objects)
+    if unsure is not None:
+        unsure = unsure[:, None].expand_as(static)
+        own = torch.where(unsure, torch.fmin(static, objects), own)  # fmin: the composition (NaN is "no object")
+        other = other.masked_fill(unsure, float("nan"))
     return own, other
 
 
 def sdf_losses(
     sdf: torch.Tensor, z: torch.Tensor, depth: torch.Tensor, truncation: float, ray_mask: torch.Tensor | None = None,
-    parts: torch.Tensor | None = None, dynamic: torch.Tensor | None = None,
+    parts: torch.Tensor | None = None, dynamic: torch.Tensor | None = None, unsure: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Free-space and SDF losses on samples.
 
@@ -48,7 +56,8 @@ def sdf_losses(
     Args:
         sdf: (N, M) truncation units; z: (N, M); depth: (N,) observed; ray_mask: (N,) bool rays to use.
         parts, dynamic: a composition's (N, M, 2) static / object SDF and the (N,) ray labels: the
-            band then regresses the part :func:`routed_sdf` names and keeps the other above the target.
+            band then regresses the part :func:`routed_sdf` names and keeps the other above the target;
+            unsure: (N,) bool rays whose label is not trusted (they regress the composition).
     Returns:
         (free_space_loss, sdf_loss) scalars.
     """
@@ -64,7 +73,7 @@ def sdf_losses(
     if parts is None or dynamic is None:
         tr = ((z + sdf * truncation - d).pow(2) * trunc).sum() / slots
         return beta_fs * fs, beta_tr * tr
-    own, other = routed_sdf(parts, dynamic)
+    own, other = routed_sdf(parts, dynamic, unsure)
     # How far the other part lies below the target (0 where it has none: NaN, masked before the arithmetic).
     below = torch.where(torch.isnan(other), torch.zeros_like(other), (d - z - other * truncation).clamp_min(0.0))
     tr = (((z + own * truncation - d).pow(2) + below.pow(2)) * trunc).sum() / slots
@@ -82,11 +91,13 @@ def robust_ray_mask(rendered: RenderedRays, depth: torch.Tensor, factor: float) 
 
 
 def slam_loss(
-    batch: RenderBatch, truncation: float, weights: LossWeights, ray_mask: torch.Tensor | None = None
+    batch: RenderBatch, truncation: float, weights: LossWeights, ray_mask: torch.Tensor | None = None,
+    unsure: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Total loss Eq. (6) of a rendered batch and its terms (detached) for logging.
 
-    ``ray_mask`` (N,) bool: the rays to use (default: rays that rendered any weight).
+    ``ray_mask`` (N,) bool: the rays to use (default: rays that rendered any weight). ``unsure`` (N,)
+    bool: rays whose motion label the SDF routing does not trust (:func:`routed_sdf`).
 
     The offset term ‖Δe‖² runs over samples of background rays, only when the rays carry a motion
     mask: without one nothing is known to be static, so the deformation is left free.
@@ -98,7 +109,7 @@ def slam_loss(
     count = m.sum().clamp_min(1)
     color = ((rendered.rgb - rays.rgb).abs().mean(-1) * m).sum() / count
     depth = ((rendered.depth - rays.depth).abs() * m).sum() / count
-    routed = (outputs.parts, rays.dynamic) if rays.has_mask else (None, None)
+    routed = (outputs.parts, rays.dynamic, unsure) if rays.has_mask else (None, None, None)
     free_space, sdf = sdf_losses(outputs.sdf, z, rays.depth, truncation, ray_mask, *routed)
     total = weights.color * color + weights.depth * depth + weights.free_space * free_space + weights.sdf * sdf
     terms = {"color": color, "depth": depth, "free_space": free_space, "sdf": sdf}

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import torch
 
 from tivne.config import RenderConfig, SamplerConfig
-from tivne.morphology import edge_band
+from tivne.morphology import edge_band, edge_band_at
 
 
 def sample_from_mask(mask: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -35,17 +35,20 @@ class PixelPool:
     """Flat indices of a frame's usable pixels, computed once and drawn from every iteration.
 
     valid: (Nv,) pixels with depth; dynamic / static: (Nd,) / (Ns,) split of them by the motion
-    mask (dynamic empty and static = valid without a mask).
+    mask (dynamic empty and static = valid without a mask); labels: the (H, W) motion mask, or None;
+    unsure: a label within this many pixels of the mask's edge is not trusted (0: all are).
     """
 
     valid: torch.Tensor
     dynamic: torch.Tensor
     static: torch.Tensor
+    labels: torch.Tensor | None = None
+    unsure: int = 0
 
     @classmethod
-    def from_masks(cls, valid: torch.Tensor, dynamic: torch.Tensor | None, edge: int = 0) -> "PixelPool":
+    def from_masks(cls, valid: torch.Tensor, dynamic: torch.Tensor | None, edge: int = 0, unsure: int = 0) -> "PixelPool":
         """valid, dynamic: (H, W) bool; ``edge``: leave out the pixels within that many pixels of the
-        dynamic mask's edge (:func:`edge_band`)."""
+        dynamic mask's edge (:func:`edge_band`); ``unsure``: mark those within that many as unsure."""
         if dynamic is not None and edge > 0:
             valid = valid & ~edge_band(dynamic, edge)
         flat_valid = valid.reshape(-1)
@@ -53,7 +56,13 @@ class PixelPool:
         if dynamic is None:
             return cls(all_idx, all_idx[:0], all_idx)
         dyn = dynamic.reshape(-1)[all_idx]
-        return cls(all_idx, all_idx[dyn], all_idx[~dyn])
+        return cls(all_idx, all_idx[dyn], all_idx[~dyn], dynamic, unsure)
+
+    def is_unsure(self, pixels: torch.Tensor) -> torch.Tensor:
+        """(n,) flat pixel indices -> (n,) bool: whether each one's label is unsure (:func:`edge_band_at`)."""
+        if self.labels is None:
+            return torch.zeros_like(pixels, dtype=torch.bool)
+        return edge_band_at(self.labels, pixels, self.unsure)
 
 
 @dataclass(frozen=True)

@@ -130,7 +130,8 @@ class Mapper:
         movable = torch.tensor([not f for f in fixed], device=base.device, dtype=base.dtype)[:, None]
         pose_delta = torch.zeros(len(views), 6, device=base.device, dtype=base.dtype, requires_grad=cfg.optimize_poses)
         pose_opt = torch.optim.Adam([pose_delta], lr=cfg.lr_pose) if cfg.optimize_poses and movable.any() else None
-        pools = [PixelPool.from_masks(v.depth > 0, v.dynamic, self.sampler.cfg.mask_edge) for v in views]
+        edges = self.sampler.cfg
+        pools = [PixelPool.from_masks(v.depth > 0, v.dynamic, edges.mask_edge, edges.label_edge) for v in views]
         share = cfg.current_share if current_share is None else current_share
         n_cur = cfg.rays if len(views) == 1 else int(cfg.rays * share)
         n_other = (cfg.rays - n_cur) // max(len(views) - 1, 1)
@@ -148,7 +149,8 @@ class Mapper:
                 explained = explained_share(batch.rendered.depth[:n].detach(), batch.rays.depth[:n], cfg.settle_sigmas)
                 if explained >= cfg.settle_share:
                     iters = min(iters, cfg.settle_iters)
-            loss, terms = slam_loss(batch, self.render.truncation, self.weights)
+            unsure = torch.cat([pool.is_unsure(p) for pool, p in zip(pools, pixels)])
+            loss, terms = slam_loss(batch, self.render.truncation, self.weights, unsure=unsure)
             if not torch.isfinite(loss) or not loss.requires_grad:  # never step the map on a broken batch
                 skipped += 1
                 continue

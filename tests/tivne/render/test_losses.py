@@ -135,6 +135,28 @@ def test_routed_sdf_loss_teaches_the_object_its_surface_and_keeps_the_static_par
     assert float(tr) > 0
 
 
+def test_routed_sdf_unsure_rays_regress_the_composition_and_push_no_other_part():
+    nan = float("nan")
+    parts = torch.tensor([[[0.1, 0.5]], [[0.2, 0.4]], [[0.3, nan]], [[0.6, 0.2]]])
+    dynamic = torch.tensor([True, False, True, False])
+    unsure = torch.tensor([True, True, True, False])
+    own, other = routed_sdf(parts, dynamic, unsure)
+    assert own[:, 0].tolist() == pytest.approx([0.1, 0.2, 0.3, 0.6])  # the min where unsure, the label's part where sure
+    assert torch.isnan(other[:3]).all() and other[3, 0] == pytest.approx(0.2)
+    sure_own, sure_other = routed_sdf(parts, dynamic, torch.zeros(4, dtype=torch.bool))
+    plain_own, plain_other = routed_sdf(parts, dynamic)
+    assert torch.equal(sure_own, plain_own) and torch.equal(sure_other.isnan(), plain_other.isnan())
+    # A mislabelled edge ray: the static copy already explains it, so the unsure ray leaves both parts alone.
+    z, depth = sample_grid()
+    target = perfect_sdf(z, depth, TR)
+    static, objects = target.clone().requires_grad_(True), (target + 0.5).requires_grad_(True)
+    both = torch.tensor([True, True])
+    _, tr = sdf_losses(torch.minimum(static, objects), z, depth, TR, parts=torch.stack([static, objects], -1), dynamic=both,
+                       unsure=both)
+    tr.backward()
+    assert float(tr) == pytest.approx(0.0, abs=1e-10) and float(objects.grad.abs().sum()) == 0.0
+
+
 def rendered(depth: torch.Tensor, wsum: torch.Tensor | None = None, rgb: torch.Tensor | None = None) -> RenderedRays:
     n = depth.shape[0]
     return RenderedRays(

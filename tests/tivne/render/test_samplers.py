@@ -80,6 +80,16 @@ def test_pixel_pool_leaves_out_the_mask_edge_band():
     assert torch.equal(PixelPool.from_masks(valid, None, edge=1).valid, valid.reshape(-1).nonzero()[:, 0])  # no mask: no band
 
 
+def test_pixel_pool_marks_the_label_edge_unsure_and_keeps_those_pixels():
+    valid, dynamic = masks()
+    pool = PixelPool.from_masks(valid, dynamic, unsure=1)
+    assert torch.equal(pool.valid, PixelPool.from_masks(valid, dynamic).valid)  # marked, not left out
+    pixels = torch.arange(valid.numel())
+    assert torch.equal(pool.is_unsure(pixels), edge_band(dynamic, 1).reshape(-1))
+    for other in (PixelPool.from_masks(valid, dynamic), PixelPool.from_masks(valid, None, unsure=1)):
+        assert not other.is_unsure(pixels).any()  # off, or no mask: every label is trusted
+
+
 @pytest.mark.parametrize("share", [0.25, 0.5])
 def test_mask_weighted_sampler_respects_dynamic_share(share):
     valid, dynamic = masks()
