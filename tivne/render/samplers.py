@@ -35,20 +35,21 @@ class PixelPool:
     """Flat indices of a frame's usable pixels, computed once and drawn from every iteration.
 
     valid: (Nv,) pixels with depth; dynamic / static: (Nd,) / (Ns,) split of them by the motion
-    mask (dynamic empty and static = valid without a mask); labels: the (H, W) motion mask, or None;
-    unsure: a label within this many pixels of the mask's edge is not trusted (0: all are).
+    mask (dynamic empty and static = valid without a mask); labels: the (H, W) motion mask, or None
+    (no mask, or nothing on it moves); label_edge: a label within this many pixels of the mask's edge
+    is not trusted (0: all are).
     """
 
     valid: torch.Tensor
     dynamic: torch.Tensor
     static: torch.Tensor
     labels: torch.Tensor | None = None
-    unsure: int = 0
+    label_edge: int = 0
 
     @classmethod
-    def from_masks(cls, valid: torch.Tensor, dynamic: torch.Tensor | None, edge: int = 0, unsure: int = 0) -> "PixelPool":
+    def from_masks(cls, valid: torch.Tensor, dynamic: torch.Tensor | None, edge: int = 0, label_edge: int = 0) -> "PixelPool":
         """valid, dynamic: (H, W) bool; ``edge``: leave out the pixels within that many pixels of the
-        dynamic mask's edge (:func:`edge_band`); ``unsure``: mark those within that many as unsure."""
+        dynamic mask's edge (:func:`edge_band`); ``label_edge``: their labels are unsure within that many."""
         if dynamic is not None and edge > 0:
             valid = valid & ~edge_band(dynamic, edge)
         flat_valid = valid.reshape(-1)
@@ -56,13 +57,14 @@ class PixelPool:
         if dynamic is None:
             return cls(all_idx, all_idx[:0], all_idx)
         dyn = dynamic.reshape(-1)[all_idx]
-        return cls(all_idx, all_idx[dyn], all_idx[~dyn], dynamic, unsure)
+        labels = dynamic if label_edge > 0 and bool(dynamic.any()) else None  # no edge: every label is sure
+        return cls(all_idx, all_idx[dyn], all_idx[~dyn], labels, label_edge)
 
     def is_unsure(self, pixels: torch.Tensor) -> torch.Tensor:
         """(n,) flat pixel indices -> (n,) bool: whether each one's label is unsure (:func:`edge_band_at`)."""
         if self.labels is None:
             return torch.zeros_like(pixels, dtype=torch.bool)
-        return edge_band_at(self.labels, pixels, self.unsure)
+        return edge_band_at(self.labels, pixels, self.label_edge)
 
 
 @dataclass(frozen=True)

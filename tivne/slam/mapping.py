@@ -130,8 +130,8 @@ class Mapper:
         movable = torch.tensor([not f for f in fixed], device=base.device, dtype=base.dtype)[:, None]
         pose_delta = torch.zeros(len(views), 6, device=base.device, dtype=base.dtype, requires_grad=cfg.optimize_poses)
         pose_opt = torch.optim.Adam([pose_delta], lr=cfg.lr_pose) if cfg.optimize_poses and movable.any() else None
-        edges = self.sampler.cfg
-        pools = [PixelPool.from_masks(v.depth > 0, v.dynamic, edges.mask_edge, edges.label_edge) for v in views]
+        sampling = self.sampler.cfg
+        pools = [PixelPool.from_masks(v.depth > 0, v.dynamic, sampling.mask_edge, sampling.label_edge) for v in views]
         share = cfg.current_share if current_share is None else current_share
         n_cur = cfg.rays if len(views) == 1 else int(cfg.rays * share)
         n_other = (cfg.rays - n_cur) // max(len(views) - 1, 1)

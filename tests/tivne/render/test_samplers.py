@@ -82,12 +82,13 @@ def test_pixel_pool_leaves_out_the_mask_edge_band():
 
 def test_pixel_pool_marks_the_label_edge_unsure_and_keeps_those_pixels():
     valid, dynamic = masks()
-    pool = PixelPool.from_masks(valid, dynamic, unsure=1)
+    pool = PixelPool.from_masks(valid, dynamic, label_edge=1)
     assert torch.equal(pool.valid, PixelPool.from_masks(valid, dynamic).valid)  # marked, not left out
     pixels = torch.arange(valid.numel())
     assert torch.equal(pool.is_unsure(pixels), edge_band(dynamic, 1).reshape(-1))
-    for other in (PixelPool.from_masks(valid, dynamic), PixelPool.from_masks(valid, None, unsure=1)):
-        assert not other.is_unsure(pixels).any()  # off, or no mask: every label is trusted
+    still = PixelPool.from_masks(valid, torch.zeros_like(dynamic), label_edge=1)
+    for other in (PixelPool.from_masks(valid, dynamic), PixelPool.from_masks(valid, None, label_edge=1), still):
+        assert not other.is_unsure(pixels).any()  # off, no mask or nothing moving: every label is trusted
 
 
 @pytest.mark.parametrize("share", [0.25, 0.5])
