@@ -132,6 +132,7 @@ class Mapper:
         pose_opt = torch.optim.Adam([pose_delta], lr=cfg.lr_pose) if cfg.optimize_poses and movable.any() else None
         sampling = self.sampler.cfg
         pools = [PixelPool.from_masks(v.depth > 0, v.dynamic, sampling.mask_edge, sampling.label_edge) for v in views]
+        any_unsure = any(pool.labels is not None for pool in pools)  # else no step reads a band (real data, still frames)
         share = cfg.current_share if current_share is None else current_share
         n_cur = cfg.rays if len(views) == 1 else int(cfg.rays * share)
         n_other = (cfg.rays - n_cur) // max(len(views) - 1, 1)
@@ -149,7 +150,7 @@ class Mapper:
                 explained = explained_share(batch.rendered.depth[:n].detach(), batch.rays.depth[:n], cfg.settle_sigmas)
                 if explained >= cfg.settle_share:
                     iters = min(iters, cfg.settle_iters)
-            unsure = torch.cat([pool.is_unsure(p) for pool, p in zip(pools, pixels)])
+            unsure = torch.cat([pool.is_unsure(p) for pool, p in zip(pools, pixels)]) if any_unsure else None
             loss, terms = slam_loss(batch, self.render.truncation, self.weights, unsure=unsure)
             if not torch.isfinite(loss) or not loss.requires_grad:  # never step the map on a broken batch
                 skipped += 1
