@@ -198,8 +198,7 @@ class OdometryConfig(Settings):
     tails at the same ATE, but the coarse levels carry large motions: with a camera whipping 70-90° (fast_turn) camera ATE went 1.24 ->
     1.58 cm and an object track was lost, so the default stays 1. inlier_sigmas: a usable pair is an inlier when its depth difference is
     within this many σ_pair of the sensor model (absolute, so it measures the alignment, not the adaptive scale). min_correspondences,
-    min_overlap, min_inlier_ratio, max_pose_std: thresholds of :attr:`OdometryResult.ok`.
-    """
+    min_overlap, min_inlier_ratio, max_pose_std: thresholds of :attr:`OdometryResult.ok`. depth_filter: see pyramid.filter_depth."""
 
     section: ClassVar[str] = "odometry"
     levels: int = setting(3, ge=1, le=6)
@@ -230,6 +229,7 @@ class OdometryConfig(Settings):
     min_inlier_ratio: float = setting(0.3, ge=0, le=1)
     max_pose_std: float = setting(0.01, gt=0)
     brightness_gain: bool = False  # #20: also a contrast gain (MAD ratio) before the brightness offset
+    depth_filter: bool = False  # #20: bilateral filter of inverse depth before the pyramid (KinectFusion)
 
     def check(self) -> None:
         if not (self.photometric or self.geometric):
