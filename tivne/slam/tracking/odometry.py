@@ -421,7 +421,8 @@ def frame_pyramid(
     rgb: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, config: OdometryConfig, mask: torch.Tensor | None = None
 ) -> list[PyramidLevel]:
     """:func:`tivne.slam.tracking.pyramid.build_pyramid` (same arguments) with the levels, depth range and noise of ``config``."""
-    return build_pyramid(rgb, depth, K, config.levels, mask, (config.min_depth, config.max_depth), config.depth_sigma, config.depth_filter)
+    return build_pyramid(rgb, depth, K, config.levels, mask, (config.min_depth, config.max_depth), config.depth_sigma,
+                         smooth=config.depth_filter)
 
 
 def rgbd_odometry(

@@ -143,7 +143,7 @@ def filter_depth(depth: torch.Tensor, coeffs: Coeffs = KINECT_SIGMA, radius: int
     distance d and by exp(−Δ²/2 s²) over their difference Δ from its own, s = range_sigmas · σ(z̃)/z̃²
     at the median depth z̃: the noise of one surface is smoothed, a step to another surface is kept.
     Invalid pixels stay 0 (their inverse depth, 0, is far outside every valid one's range).
-    OpenCV's bilateral filter (C++, on the CPU; ~1/50 of the same filter in torch ops).
+    OpenCV's bilateral filter, on the CPU: 13 ms a 640x480 frame, a tenth of the same filter in torch ops.
     """
     valid = depth > 0
     if not bool(valid.any()):
