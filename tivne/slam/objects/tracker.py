@@ -145,7 +145,7 @@ class ObjectTracker:
         self.source = config.source if config.source != "auto" else ("dataset" if masks == "dataset" else "geometric")
         self.segment_without_ids = config.source == "auto"
         self.K = K.float()
-        self.odo = replace(odometry, levels=config.levels)
+        self.odo = replace(odometry, levels=config.levels, depth_filter=False)  # objects.depth_smoothing, on their pixels only
         self.names = dict(names or {})
         self.tracks: dict[int, ObjectTrack] = {}
         self.stamps: dict[int, dict[float, float]] = {}  # per track: τ -> timestamp [s]

@@ -232,3 +232,13 @@ def test_a_pose_far_beyond_the_motion_priors_reach_is_not_taken(cube, accel_sigm
     (obs,) = tracker.step(f, cube.camera_pose(3).double() @ _turned_about_y(4.0), float(f.timestamp), f.instances)
     assert obs.ok == taken and len(tracker.tracks[1].poses()) == 3 + int(taken)
     assert obs.inlier_ratio > 0.5 and obs.overlap > 0.5  # the alignment itself held: the gate refused it
+
+
+def test_the_object_odometry_keeps_its_own_depth_smoothing_not_the_cameras_depth_filter():
+    """``odometry.depth_filter`` filters a whole frame before the camera's pyramid; an object's
+    odometry smooths its own pixels (``objects.depth_smoothing``) and would otherwise filter the whole
+    frame again for every object, on top of that."""
+    from tivne.config import OdometryConfig
+
+    tracker = ObjectTracker(ObjectsConfig(track=True), torch.eye(3), OdometryConfig(depth_filter=True))
+    assert tracker.odo.depth_filter is False and tracker.odo.levels == ObjectsConfig().levels
