@@ -192,13 +192,12 @@ class OdometryConfig(Settings):
     (occlusion, another surface). max_normal_angle_deg: reject point-to-plane pairs whose normals disagree more. min_depth, max_depth:
     usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than this many of its pixels (|w|·f
     + |v|·f/z̄, z̄ the median depth); stall_pixels: or by less than this without shrinking. damping: Levenberg–Marquardt λ relative to
-    diag(H). max_points: at most about this many current pixels at the finest level (every k-th pixel on both axes; 0 = all): past a few
-    ten thousand the estimate is limited by systematic errors, not by the count. coarse_points_ratio: each coarser level takes this many
-    times fewer (level l: max_points / ratio^l; 1 = the same cap at every level). 2 cut the odometry's time by 10-22 % on both real
-    tails at the same ATE, but the coarse levels carry large motions: with a camera whipping 70-90° (fast_turn) camera ATE went 1.24 ->
-    1.58 cm and an object track was lost, so the default stays 1. inlier_sigmas: a usable pair is an inlier when its depth difference is
-    within this many σ_pair of the sensor model (absolute, so it measures the alignment, not the adaptive scale). min_correspondences,
-    min_overlap, min_inlier_ratio, max_pose_std: thresholds of :attr:`OdometryResult.ok`. depth_filter: see pyramid.filter_depth."""
+    diag(H). max_points: at most about this many current pixels at the finest level (one in each k x k tile; 0 = all): past a few ten
+    thousand the estimate is limited by systematic errors, not by the count. pick: which pixel of a tile, "grid" (its corner) or "gradient"
+    (its strongest intensity gradient: pyramid.pick_pixels). coarse_points_ratio: each coarser level takes this many times fewer (level l:
+    max_points / ratio^l); 2 is 10-22 % faster on the real tails but loses a whipping camera. inlier_sigmas: a usable pair is an inlier
+    when its depth difference is within this many σ_pair of the sensor model (absolute: it measures the alignment, not the adaptive scale).
+    min_correspondences, min_overlap, min_inlier_ratio, max_pose_std: what OdometryResult.ok needs. depth_filter: pyramid.filter_depth."""
 
     section: ClassVar[str] = "odometry"
     levels: int = setting(3, ge=1, le=6)
@@ -230,6 +229,7 @@ class OdometryConfig(Settings):
     max_pose_std: float = setting(0.01, gt=0)
     brightness_gain: bool = False  # #20: also a contrast gain (MAD ratio) before the brightness offset
     depth_filter: bool = False  # #20: bilateral filter of inverse depth before the pyramid (KinectFusion)
+    pick: str = setting("grid", choices=("grid", "gradient"))
 
     def check(self) -> None:
         if not (self.photometric or self.geometric):

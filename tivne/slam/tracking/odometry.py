@@ -29,7 +29,7 @@ from data_modules.poses import rotation_vector
 from data_modules.sensor import kinect_depth_sigma
 from tivne.config import OdometryConfig
 from tivne.geometry import adjoint_vw, eigen_range, invert_pose, pixel_coordinates, se3_step
-from tivne.slam.tracking.pyramid import PyramidLevel, build_pyramid
+from tivne.slam.tracking.pyramid import PyramidLevel, build_pyramid, pick_pixels
 from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale, subsample
 
 
@@ -116,10 +116,7 @@ def _in_image(u: torch.Tensor, v: torch.Tensor, z: torch.Tensor, shape: tuple[in
 def _source(level: PyramidLevel, max_points: float, T_rgb_depth: torch.Tensor | None, cfg: OdometryConfig) -> _Source:
     sel = level.usable
     stride = math.ceil(math.sqrt(int(sel.sum()) / max(max_points, 1.0))) if max_points > 0 else 1
-    if stride > 1:
-        grid = torch.zeros_like(sel)
-        grid[::stride, ::stride] = True
-        sel = sel & grid
+    sel = pick_pixels(level, sel, stride, cfg.pick) if stride > 1 else sel
     (points, normals), intensity = level.points(sel), level.intensity[sel]
     if T_rgb_depth is None:
         has_colour = torch.ones_like(intensity, dtype=torch.bool)

@@ -180,6 +180,29 @@ def image_gradients(img: torch.Tensor) -> torch.Tensor:
     return torch.stack([gu, gv])
 
 
+def pick_pixels(level: PyramidLevel, usable: torch.Tensor, stride: int, how: str = "grid") -> torch.Tensor:
+    """(H, W) bool: at most one of the ``usable`` (H, W) pixels of ``level`` in each ``stride`` x ``stride`` tile.
+
+    "grid": the tile's top-left pixel. "gradient": the tile's usable pixel of the largest intensity
+    gradient, DSO's selection in its simplest form: as many pixels as the grid, spread as evenly, each
+    where the photometric term learns the most about the motion (the point-to-plane term is indifferent).
+    The gradients are the level's warp image, which the frame reuses if it becomes a reference.
+    """
+    if how == "grid" or stride <= 1:
+        grid = torch.zeros_like(usable)
+        grid[::stride, ::stride] = True
+        return usable & grid
+    g = level.warp_image[0, 1:]
+    score = torch.where(usable, (g * g).sum(0), torch.full_like(level.intensity, -1.0))
+    h, w = score.shape
+    padded = F.pad(score[None, None], (0, -w % stride, 0, -h % stride), value=-1.0)
+    best, index = F.max_pool2d(padded, stride, stride, return_indices=True)
+    index = index.flatten()[best.flatten() >= 0]  # tiles without a usable pixel give none
+    picked = torch.zeros_like(usable)
+    picked[index // padded.shape[-1], index % padded.shape[-1]] = True
+    return picked
+
+
 def max_depth_jump(z: torch.Tensor, f: float, coeffs: Coeffs = KINECT_SIGMA) -> torch.Tensor:
     """Largest depth step (...) between neighbouring pixels on one surface at depth z (...).
 

@@ -73,6 +73,22 @@ def test_known_motion_is_recovered(room, seed, trans_m, rot_deg, terms):
     assert math.isnan(res.rms_geometric) == (terms == "photometric") and math.isnan(res.rms_photometric) == (terms == "geometric")
 
 
+@pytest.mark.parametrize("terms, tol_mm, tol_deg", [("joint", 1.0, 0.05), ("geometric", 1.0, 0.05), ("photometric", 2.0, 0.1)])
+@pytest.mark.parametrize("pick", ["grid", "gradient"])
+def test_known_motion_is_recovered_from_a_sparse_pick(room, terms, tol_mm, tol_deg, pick):
+    """With one pixel in each 3x3 tile (max_points 2000 of 19k), either pick recovers a known motion.
+    Colour alone ends 0.3-1.7 mm off with either pick on this noise-free 8-bit room (seeds 5-9: its
+    aliased edges), the depth terms within 0.05 mm."""
+    P = room.camera_pose(0)
+    dT = motion(5, 0.03, 3.0)
+    ref, cur = view(room, P), view(room, P @ dT)
+    cfg = OdometryConfig(photometric=terms != "geometric", geometric=terms != "photometric", max_points=2000, pick=pick)
+    res = rgbd_odometry(ref[0], ref[1], cur[0], cur[1], room.intrinsics.K(), config=cfg)
+    t_err, r_err = pose_error(res.T_ref_cur, dT)
+    assert t_err < tol_mm and r_err < tol_deg, (t_err, r_err, res)
+    assert res.ok
+
+
 def test_parallax_pixels_vanish_at_the_median_depth():
     z = torch.tensor([1.0, 2.0, 4.0])
     px = parallax_pixels(z, focal=500.0, baseline=0.025)

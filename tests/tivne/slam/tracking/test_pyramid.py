@@ -1,11 +1,12 @@
-"""The depth filter of the odometry's pyramid (tivne.slam.tracking.pyramid.filter_depth)."""
+"""The odometry's pyramid (tivne.slam.tracking.pyramid): the depth filter, the pick of the tracked pixels."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from data_modules.sensor import kinect_depth_sigma
-from tivne.slam.tracking.pyramid import build_pyramid, filter_depth
+from tivne.slam.tracking.pyramid import build_pyramid, filter_depth, image_gradients, pick_pixels
 
 
 def _plane(z: float, h: int = 40, w: int = 50) -> torch.Tensor:
@@ -57,3 +58,40 @@ def test_the_pyramid_filters_only_when_asked_and_after_removing_dynamic_pixels()
     assert torch.allclose(smoothed[0].depth, filter_depth(static), rtol=0, atol=0)
     assert (smoothed[0].depth[dynamic] == 0).all()
     assert not torch.allclose(smoothed[0].depth, plain[0].depth)
+
+
+def _level(h: int = 23, w: int = 30):
+    g = torch.Generator().manual_seed(2)
+    rgb = torch.rand(h, w, 3, generator=g, dtype=torch.float64)
+    K = torch.tensor([[30.0, 0, 15], [0, 30.0, 11], [0, 0, 1]], dtype=torch.float64)
+    return build_pyramid(rgb, torch.full((h, w), 2.0, dtype=torch.float64), K, 1)[0]
+
+
+def test_the_grid_pick_takes_each_tiles_corner():
+    level = _level()
+    usable = torch.ones_like(level.usable)
+    usable[0, 0] = False
+    picked = pick_pixels(level, usable, 4)
+    expected = torch.zeros_like(usable)
+    expected[::4, ::4] = True
+    expected[0, 0] = False
+    assert torch.equal(picked, expected)
+
+
+@pytest.mark.parametrize("stride", [2, 4, 7])
+def test_the_gradient_pick_takes_each_tiles_strongest_usable_pixel(stride):
+    """One pixel in each tile that has a usable one (also the cut tiles at the right and bottom
+    border), none in a tile without; each is the usable pixel of the largest gradient there."""
+    level = _level()
+    usable = torch.rand(level.usable.shape, generator=torch.Generator().manual_seed(3)) > 0.3
+    usable[:stride, :stride] = False  # one tile without a usable pixel
+    picked = pick_pixels(level, usable, stride, "gradient")
+    strength = image_gradients(level.intensity).pow(2).sum(0)
+    h, w = usable.shape
+    for r in range(0, h, stride):
+        for c in range(0, w, stride):
+            tile, mask = picked[r:r + stride, c:c + stride], usable[r:r + stride, c:c + stride]
+            assert int(tile.sum()) == int(mask.any())
+            if mask.any():
+                assert (tile & mask).any()
+                assert strength[r:r + stride, c:c + stride][tile].max() == strength[r:r + stride, c:c + stride][mask].max()
