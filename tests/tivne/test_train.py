@@ -6,6 +6,7 @@ import json
 import math
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -24,7 +25,7 @@ CONF = Path(__file__).resolve().parents[2] / "conf"
 BASE = ["experiment=smoke", "dataset.cache_dir=null", "output.image_every=2", "dataset.width=160", "dataset.height=120"]
 FULL_SIZE = ["dataset.width=640", "dataset.height=480"]
 sys.path.insert(0, str(CONF.parent / "tests"))
-from cli_worker import run_commands  # noqa: E402
+from cli_worker import Batch  # noqa: E402
 
 # The run's final evaluation (output.evaluate=true) with fewer surface samples than the defaults (200k
 # on the mesh, 50k per object, 100k static: ~20 s of nearest-neighbour queries per 5-frame run on
@@ -97,11 +98,16 @@ def unusable_depth_sequence(seq: Path) -> None:
     (seq / "intrinsics.txt").write_text("60 60 39.5 29.5\n")
 
 
-@pytest.fixture(scope="module")
-def cli(tmp_path_factory) -> tuple[Path, dict[str, subprocess.CompletedProcess]]:
-    """The command lines of the CLI tests below, run once, in one worker process
-    (tests/cli_worker.py): one interpreter start instead of four. The refusal whose stderr is
-    checked line by line goes first: it starts with nothing imported, as a new process does."""
+@pytest.fixture(scope="module", autouse=True)
+def cli_started(request, tmp_path_factory) -> Iterator[tuple[Path, list[str], Batch] | None]:
+    """The command lines of the CLI tests below, in one worker process (tests/cli_worker.py): one
+    interpreter start instead of four. Started with the module's first test, so its start (~10 s
+    of one core importing torch and Lightning) and runs overlap the in-process runs before the CLI
+    tests. The refusal whose stderr is checked line by line goes first: it starts with nothing
+    imported, as a new process does."""
+    if not any("cli" in item.fixturenames for item in request.session.items if item.module is request.module):
+        yield None  # no CLI test selected
+        return
     root = tmp_path_factory.mktemp("train_cli")
     (root / "refused").mkdir()
     unusable_depth_sequence(root / "seq")
@@ -111,8 +117,16 @@ def cli(tmp_path_factory) -> tuple[Path, dict[str, subprocess.CompletedProcess]]
         "single": [*BASE, f"hydra.run.dir={root / 'one'}"],
         "multirun": ["-m", *BASE, "field.time=true,false", f"hydra.sweep.dir={root / 'sweep'}"],
     }
-    results = run_commands([("tivne.train", args) for args in commands.values()], cwd=root)
-    return root, dict(zip(commands, results))
+    batch = Batch([("tivne.train", args) for args in commands.values()], cwd=root)
+    yield root, list(commands), batch
+    batch.stop()
+
+
+@pytest.fixture(scope="module")
+def cli(cli_started) -> tuple[Path, dict[str, subprocess.CompletedProcess]]:
+    """The CLI tests' results (waits for the worker)."""
+    root, names, batch = cli_started
+    return root, dict(zip(names, batch.results()))
 
 
 def test_cli_single_run_and_multirun(cli):
