@@ -118,6 +118,12 @@ def run_commands(commands: Sequence[tuple[str, Sequence[str]]], cwd: Path, env: 
     return Batch(commands, cwd, env, watch, timeout).results()
 
 
+def used_in_module(request, fixture: str) -> bool:
+    """Whether a selected test of the module of ``request`` (a pytest fixture request) uses
+    ``fixture``: a batch started ahead for a module's CLI tests is left out when none runs."""
+    return any(fixture in item.fixturenames for item in request.session.items if item.module is request.module)
+
+
 def read_text(path: str) -> str | None:
     return Path(path).read_text() if Path(path).is_file() else None
 

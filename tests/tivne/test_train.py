@@ -25,7 +25,7 @@ CONF = Path(__file__).resolve().parents[2] / "conf"
 BASE = ["experiment=smoke", "dataset.cache_dir=null", "output.image_every=2", "dataset.width=160", "dataset.height=120"]
 FULL_SIZE = ["dataset.width=640", "dataset.height=480"]
 sys.path.insert(0, str(CONF.parent / "tests"))
-from cli_worker import Batch  # noqa: E402
+from cli_worker import Batch, used_in_module  # noqa: E402
 
 # The run's final evaluation (output.evaluate=true) with fewer surface samples than the defaults (200k
 # on the mesh, 50k per object, 100k static: ~20 s of nearest-neighbour queries per 5-frame run on
@@ -105,8 +105,8 @@ def cli_started(request, tmp_path_factory) -> Iterator[tuple[Path, list[str], Ba
     of one core importing torch and Lightning) and runs overlap the in-process runs before the CLI
     tests. The refusal whose stderr is checked line by line goes first: it starts with nothing
     imported, as a new process does."""
-    if not any("cli" in item.fixturenames for item in request.session.items if item.module is request.module):
-        yield None  # no CLI test selected
+    if not used_in_module(request, "cli"):
+        yield None
         return
     root = tmp_path_factory.mktemp("train_cli")
     (root / "refused").mkdir()
