@@ -84,6 +84,76 @@ def test_no_masks_runs(tmp_path):
     assert (tmp_path / "checkpoints" / "slam.pt").is_file()
 
 
+def test_presets_compose(tmp_path):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        default = compose("config")
+        fast, quality, paper = (compose("config", overrides=[f"experiment={e}"]) for e in ("fast", "quality", "paper"))
+    assert (default.mapping.every, default.mapping.iters, default.mapping.rays) == (1, 5, 512) and default.tracking.method == "odometry"
+    assert fast.mapping.iters == 3 and (quality.mapping.every, quality.mapping.iters, quality.mapping.rays) == (1, 20, 1024)
+    assert default.render.n_band == 8 and quality.render.n_band == 12  # quality samples the band around the depth more densely
+    assert paper.tracking.method == "field" and paper.mapping.every == 1 and paper.mapping.iters == 20 and paper.field_tracking.iters == 30
+    smoke = compose_cfg("mapping.every=2", "data.max_frames=5", "masks=geometric")
+    metrics = run(smoke, tmp_path)
+    assert metrics["frames"] == 5 and metrics["map_ms_per_iter"] > 0
+    assert len(read_tum_trajectory(tmp_path / "trajectory.txt")[0]) == 5
+
+
+def test_final_evaluation_writes_4d_metrics(tmp_path, fast_evaluation):
+    cfg = compose_cfg("output.evaluate=true", "mesh.times=[0.0,0.1]")
+    metrics = run(cfg, tmp_path)
+    on_disk = json.loads((tmp_path / "metrics.json").read_text())
+    assert on_disk["mesh_eval_times"] == [0.0, 0.1] and on_disk["ate_partial"] is False
+    for key in ("mesh_t0.10_cube_accuracy_m", "mesh_t0.10_cube_chamfer_m", "mesh_t0.10_ghost_fraction", "object_chamfer_max_m"):
+        assert key in on_disk and key in metrics
+    assert on_disk["psnr_frames"] == 1 and math.isfinite(on_disk["psnr_db"]) and on_disk["ssim"] is not None
+    assert (tmp_path / "meshes" / "mesh_t0.100.ply").is_file()
+    with pytest.raises(ConfigError, match="outside the recorded range"):  # before any frame is processed
+        run(compose_cfg("mesh.times=[99]"), tmp_path / "refused")
+    assert not (tmp_path / "refused").exists()
+
+
+@pytest.mark.parametrize("tracks", ["tracked", "oracle"])
+def test_object_fields_run_on_their_tracks_and_come_back_from_the_checkpoint(tmp_path, tracks, fast_evaluation):
+    from tivne.field.objects import ObjectField
+
+    # Full-size frames: at 160x120 the ghost fraction is ~0.08 (0.036 at 640x480), over the 0.05 checked below.
+    cfg = compose_cfg(*FULL_SIZE, "field=objects", f"object_field.tracks={tracks}", "output.evaluate=true", "mesh.times=[0.0,0.1]")
+    metrics = run(cfg, tmp_path)
+    field, _ = load_checkpoint(tmp_path / "checkpoints" / "slam.pt")
+    assert isinstance(field, ObjectField) and not field.time and list(field.slots) == [1]
+    assert (tmp_path / "objects" / "1.txt").is_file()  # field=objects turns the object tracker on (with the oracle too: its error is reported)
+    assert field.slots[1].field.grid.num_voxels > 0 and field.grid.dynamic_keys.numel() == 0  # the cube lives in its own grid
+    assert metrics["mesh_t0.10_cube_chamfer_m"] < 0.05 and metrics["ghost_fraction_max"] < 0.05
+
+
+def test_object_fields_without_the_object_tracker_are_refused_before_the_run(tmp_path):
+    with pytest.raises(ConfigError, match="set objects.track=true"):
+        run(compose_cfg("field=objects", "objects.track=false"), tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+
+
+def test_overwrite_clears_the_old_results_first(tmp_path):
+    run(compose_cfg("mesh.times=[0.0,0.1]"), tmp_path)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    (tmp_path / "metrics.json").write_text(json.dumps(metrics | {"stale_key": 1}))
+    old_meshes = sorted(p.name for p in (tmp_path / "meshes").iterdir())
+    from tivne.slam.outputs import RunDirError
+
+    with pytest.raises(RunDirError, match="already holds results"):
+        run(compose_cfg(), tmp_path)
+    assert json.loads((tmp_path / "metrics.json").read_text())["stale_key"] == 1  # refused: nothing touched
+    old_events = {p.name for p in (tmp_path / "tb").glob("events.*")}
+    metrics = run(compose_cfg("overwrite=true", "output.image_every=0"), tmp_path)
+    assert "stale_key" not in json.loads((tmp_path / "metrics.json").read_text()) and metrics["complete"] is True
+    meshes = sorted(p.name for p in (tmp_path / "meshes").iterdir())
+    assert old_meshes == ["mesh_t0.000.ply", "mesh_t0.100.ply"] and meshes == ["mesh_t0.000.ply", "mesh_t0.133.ply"]
+    new_events = {p.name for p in (tmp_path / "tb").glob("events.*")}
+    assert old_events and new_events and not old_events & new_events  # the old run's events went too
+
+
+# ---- the command line (last: its worker, started with the module's first test, runs alongside the runs above) --------
+
+
 def unusable_depth_sequence(seq: Path) -> None:
     """A folder sequence of 6 frames whose depth is 0 everywhere (random colour)."""
     import cv2
@@ -147,54 +217,6 @@ def test_bad_dataset_value_is_one_error_line(cli):
     assert "Traceback" not in out.stderr
 
 
-def test_presets_compose(tmp_path):
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        default = compose("config")
-        fast, quality, paper = (compose("config", overrides=[f"experiment={e}"]) for e in ("fast", "quality", "paper"))
-    assert (default.mapping.every, default.mapping.iters, default.mapping.rays) == (1, 5, 512) and default.tracking.method == "odometry"
-    assert fast.mapping.iters == 3 and (quality.mapping.every, quality.mapping.iters, quality.mapping.rays) == (1, 20, 1024)
-    assert default.render.n_band == 8 and quality.render.n_band == 12  # quality samples the band around the depth more densely
-    assert paper.tracking.method == "field" and paper.mapping.every == 1 and paper.mapping.iters == 20 and paper.field_tracking.iters == 30
-    smoke = compose_cfg("mapping.every=2", "data.max_frames=5", "masks=geometric")
-    metrics = run(smoke, tmp_path)
-    assert metrics["frames"] == 5 and metrics["map_ms_per_iter"] > 0
-    assert len(read_tum_trajectory(tmp_path / "trajectory.txt")[0]) == 5
-
-
-def test_final_evaluation_writes_4d_metrics(tmp_path, fast_evaluation):
-    cfg = compose_cfg("output.evaluate=true", "mesh.times=[0.0,0.1]")
-    metrics = run(cfg, tmp_path)
-    on_disk = json.loads((tmp_path / "metrics.json").read_text())
-    assert on_disk["mesh_eval_times"] == [0.0, 0.1] and on_disk["ate_partial"] is False
-    for key in ("mesh_t0.10_cube_accuracy_m", "mesh_t0.10_cube_chamfer_m", "mesh_t0.10_ghost_fraction", "object_chamfer_max_m"):
-        assert key in on_disk and key in metrics
-    assert on_disk["psnr_frames"] == 1 and math.isfinite(on_disk["psnr_db"]) and on_disk["ssim"] is not None
-    assert (tmp_path / "meshes" / "mesh_t0.100.ply").is_file()
-    with pytest.raises(ConfigError, match="outside the recorded range"):  # before any frame is processed
-        run(compose_cfg("mesh.times=[99]"), tmp_path / "refused")
-    assert not (tmp_path / "refused").exists()
-
-
-@pytest.mark.parametrize("tracks", ["tracked", "oracle"])
-def test_object_fields_run_on_their_tracks_and_come_back_from_the_checkpoint(tmp_path, tracks, fast_evaluation):
-    from tivne.field.objects import ObjectField
-
-    # Full-size frames: at 160x120 the ghost fraction is ~0.08 (0.036 at 640x480), over the 0.05 checked below.
-    cfg = compose_cfg(*FULL_SIZE, "field=objects", f"object_field.tracks={tracks}", "output.evaluate=true", "mesh.times=[0.0,0.1]")
-    metrics = run(cfg, tmp_path)
-    field, _ = load_checkpoint(tmp_path / "checkpoints" / "slam.pt")
-    assert isinstance(field, ObjectField) and not field.time and list(field.slots) == [1]
-    assert (tmp_path / "objects" / "1.txt").is_file()  # field=objects turns the object tracker on (with the oracle too: its error is reported)
-    assert field.slots[1].field.grid.num_voxels > 0 and field.grid.dynamic_keys.numel() == 0  # the cube lives in its own grid
-    assert metrics["mesh_t0.10_cube_chamfer_m"] < 0.05 and metrics["ghost_fraction_max"] < 0.05
-
-
-def test_object_fields_without_the_object_tracker_are_refused_before_the_run(tmp_path):
-    with pytest.raises(ConfigError, match="set objects.track=true"):
-        run(compose_cfg("field=objects", "objects.track=false"), tmp_path / "run")
-    assert not (tmp_path / "run").exists()
-
-
 def test_a_run_without_usable_depth_fails_with_one_line_not_an_identity_trajectory(cli):
     root, outs = cli
     out = outs["no depth"]
@@ -204,22 +226,3 @@ def test_a_run_without_usable_depth_fails_with_one_line_not_an_identity_trajecto
     assert sum(line.startswith("warning: frame") for line in out.stderr.splitlines()) == 4
     metrics = json.loads((root / "run" / "metrics.json").read_text())
     assert metrics["frames_without_tracking"] == 4  # written before the refusal
-
-
-def test_overwrite_clears_the_old_results_first(tmp_path):
-    run(compose_cfg("mesh.times=[0.0,0.1]"), tmp_path)
-    metrics = json.loads((tmp_path / "metrics.json").read_text())
-    (tmp_path / "metrics.json").write_text(json.dumps(metrics | {"stale_key": 1}))
-    old_meshes = sorted(p.name for p in (tmp_path / "meshes").iterdir())
-    from tivne.slam.outputs import RunDirError
-
-    with pytest.raises(RunDirError, match="already holds results"):
-        run(compose_cfg(), tmp_path)
-    assert json.loads((tmp_path / "metrics.json").read_text())["stale_key"] == 1  # refused: nothing touched
-    old_events = {p.name for p in (tmp_path / "tb").glob("events.*")}
-    metrics = run(compose_cfg("overwrite=true", "output.image_every=0"), tmp_path)
-    assert "stale_key" not in json.loads((tmp_path / "metrics.json").read_text()) and metrics["complete"] is True
-    meshes = sorted(p.name for p in (tmp_path / "meshes").iterdir())
-    assert old_meshes == ["mesh_t0.000.ply", "mesh_t0.100.ply"] and meshes == ["mesh_t0.000.ply", "mesh_t0.133.ply"]
-    new_events = {p.name for p in (tmp_path / "tb").glob("events.*")}
-    assert old_events and new_events and not old_events & new_events  # the old run's events went too
