@@ -9,7 +9,8 @@ nothing imported, so a batch puts first the command whose stderr is checked most
 the one that would show anything an import prints).
 
 ``python tests/cli_worker.py --commands JSON --out FILE`` is the worker; :func:`run_commands`
-starts it.
+starts it and waits, :class:`Batch` starts it in the background (its start overlaps the tests that
+run meanwhile).
 """
 
 from __future__ import annotations
@@ -70,26 +71,57 @@ def run_module(module: str, args: Sequence[str], patch: contextlib.AbstractConte
     return code, out[0], out[1]
 
 
+class Batch:
+    """``commands`` ([(module, args), ...]) started in order in one new worker process in ``cwd``
+    (environment ``env``, default this one's), in the background: :meth:`results` waits for them.
+    The worker's own output goes to files, so it never stalls while nothing reads it."""
+
+    def __init__(self, commands: Sequence[tuple[str, Sequence[str]]], cwd: Path, env: dict[str, str] | None = None,
+                 watch: Sequence[Path] = (), timeout: float = 600) -> None:
+        self.commands, self.timeout = [(m, list(a)) for m, a in commands], timeout
+        self.tmp = tempfile.TemporaryDirectory(prefix="cli-worker-")
+        self.out = Path(self.tmp.name) / "results.json"
+        env = dict(os.environ if env is None else env)
+        env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+        cmd = [sys.executable, __file__, "--commands", json.dumps(self.commands), "--out", str(self.out),
+               "--watch", json.dumps([str(p) for p in watch])]
+        with open(Path(self.tmp.name) / "stdout", "w") as stdout, open(Path(self.tmp.name) / "stderr", "w") as stderr:
+            self.proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=stdout, stderr=stderr, text=True)
+
+    def results(self) -> list[subprocess.CompletedProcess]:
+        """One CompletedProcess (returncode, stdout, stderr) per command, whose ``files`` holds the
+        text of each ``watch`` path (None when absent) as that command left it."""
+        try:
+            self.proc.wait(timeout=self.timeout)
+        finally:
+            self.stop()
+        stderr = (Path(self.tmp.name) / "stderr").read_text()
+        assert self.proc.returncode == 0 and self.out.is_file(), stderr[-3000:]
+        results = json.loads(self.out.read_text())
+        self.tmp.cleanup()
+        done = []
+        for (module, args), (code, stdout, stderr, files) in zip(self.commands, results):
+            done.append(subprocess.CompletedProcess([sys.executable, "-m", module, *args], code, stdout, stderr))
+            done[-1].files = {Path(p): text for p, text in files.items()}
+        return done
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
 def run_commands(commands: Sequence[tuple[str, Sequence[str]]], cwd: Path, env: dict[str, str] | None = None,
                  watch: Sequence[Path] = (), timeout: float = 600) -> list[subprocess.CompletedProcess]:
     """Run ``commands`` ([(module, args), ...]) in order in one new worker process started in
-    ``cwd`` (environment ``env``, default this one's); one CompletedProcess (returncode, stdout,
-    stderr) per command, whose ``files`` holds the text of each ``watch`` path (None when absent)
-    as that command left it."""
-    with tempfile.TemporaryDirectory(prefix="cli-worker-") as tmp:
-        out = Path(tmp) / "results.json"
-        env = dict(os.environ if env is None else env)
-        env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
-        cmd = [sys.executable, __file__, "--commands", json.dumps([[m, list(a)] for m, a in commands]), "--out", str(out),
-               "--watch", json.dumps([str(p) for p in watch])]
-        proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
-        assert proc.returncode == 0 and out.is_file(), proc.stderr[-3000:]
-        results = json.loads(out.read_text())
-    done = []
-    for (module, args), (code, stdout, stderr, files) in zip(commands, results):
-        done.append(subprocess.CompletedProcess([sys.executable, "-m", module, *args], code, stdout, stderr))
-        done[-1].files = {Path(p): text for p, text in files.items()}
-    return done
+    ``cwd`` (environment ``env``, default this one's) and wait for them: :meth:`Batch.results`."""
+    return Batch(commands, cwd, env, watch, timeout).results()
+
+
+def used_in_module(request, fixture: str) -> bool:
+    """Whether a selected test of the module of ``request`` (a pytest fixture request) uses
+    ``fixture``: a batch started ahead for a module's CLI tests is left out when none runs."""
+    return any(fixture in item.fixturenames for item in request.session.items if item.module is request.module)
 
 
 def read_text(path: str) -> str | None:

@@ -322,23 +322,6 @@ def instantiate_dataset(config: str, root: Path | str, **overrides):
         raise
 
 
-def run_inspect_cli(*overrides: str, timeout: float = 120):
-    """Run ``python -m data_modules.inspect <overrides>`` from the repository root."""
-    import os
-    import subprocess
-    import sys
-
-    env = dict(os.environ, OMP_NUM_THREADS="1", OMP_WAIT_POLICY="PASSIVE")
-    return subprocess.run(
-        [sys.executable, "-m", "data_modules.inspect", *overrides],
-        cwd=CONF_DIR.parents[1],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
-
-
 def run_inspect_inprocess(*overrides: str) -> int:
     """Compose ``conf/inspect.yaml`` with ``overrides`` and run the inspect CLI body in this process
     (same code path as ``python -m data_modules.inspect`` minus interpreter start-up); returns the

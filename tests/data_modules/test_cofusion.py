@@ -262,18 +262,20 @@ def test_inspect_summarize(tmp_path):
     assert s["depth_min_m"] == 0.5 and s["depth_max_m"] <= 39 / 8
 
 
-def test_inspect_cli_json_and_gt_out(tmp_path):
+def test_inspect_json_and_gt_out(tmp_path, capsys):
+    """The inspect command's body on a toycar3 sequence, in this process as the other readers' tests
+    run it (a new interpreter spends ~9 s importing Lightning; the command line itself, its exit
+    status and its files, is tested in test_inspect.py)."""
     import json
 
-    from fixtures import run_inspect_cli
+    from fixtures import run_inspect_inprocess
 
     from data_modules.tables import read_tum_trajectory
 
     truth = make_cofusion(tmp_path / "car4-full", n=3)
     gt = tmp_path / "gt.txt"
-    r = run_inspect_cli("dataset=toycar3", f"dataset.root={tmp_path / 'car4-full'}", "format=json", f"gt_out={gt}")
-    assert r.returncode == 0, r.stderr
-    s = json.loads(r.stdout.strip().splitlines()[-1])
+    assert run_inspect_inprocess("dataset=toycar3", f"dataset.root={tmp_path / 'car4-full'}", "format=json", f"gt_out={gt}") == 0
+    s = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert (s["name"], s["frames"], s["width"], s["height"]) == ("toycar3", 3, W, H)
     assert s["has_gt_poses"] and s["has_masks"]
     assert s["valid_depth_pct"] == pytest.approx(100 * (1 - 1 / (W * H)))

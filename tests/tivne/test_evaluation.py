@@ -4,7 +4,9 @@ directories over a tiny moving-cube sequence."""
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
@@ -27,7 +29,7 @@ from tivne.slam.outputs import RunDir
 
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO / "tests"))
-from cli_worker import run_commands  # noqa: E402
+from cli_worker import Batch, used_in_module  # noqa: E402
 
 # fps=1: the cube moves ~0.3 m between the first and last frame, so a stale mesh shows up.
 CUBE_ARGS = dict(num_frames=4, fps=1.0, width=64, height=48, depth_noise=False, rgb_noise=0.0, cache_dir=None)
@@ -174,8 +176,18 @@ def test_partial_run_is_flagged(tmp_path, view, gt_meshes):
     assert evaluate_run(full, view, settings=FAST)["ate_partial"] is True
 
 
-def test_cli_merges_into_metrics_json(tmp_path, view, gt_meshes):
-    run_dir = make_run(tmp_path, view, gt_meshes)
+@pytest.fixture(scope="module", autouse=True)
+def cli_started(request, tmp_path_factory) -> Iterator[tuple[Path, Batch] | None]:
+    """The command lines of test_cli_merges_into_metrics_json on a run dir of its own, in one worker
+    process (tests/cli_worker.py), started with the module's first test: its start (~10 s of one
+    core importing torch and Lightning) and its evaluation overlap the in-process tests before it.
+    A refusal whose stderr must be exactly one line goes first: it starts with nothing imported, as
+    a new process does."""
+    if not used_in_module(request, "cli"):
+        yield None
+        return
+    tmp_path = tmp_path_factory.mktemp("evaluate_cli")
+    run_dir = make_run(tmp_path, request.getfixturevalue("view"), request.getfixturevalue("gt_meshes"))
     overrides = ["experiment=smoke", "data.max_frames=null", "data.resize=null"] + [f"dataset.{k}={'null' if v is None else v}" for k, v in CUBE_ARGS.items()]
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
@@ -183,13 +195,23 @@ def test_cli_merges_into_metrics_json(tmp_path, view, gt_meshes):
     OmegaConf.save(cfg, run_dir / ".hydra" / "config.yaml")
     (run_dir / "metrics.json").write_text(json.dumps({"frames": 4, "wall_s": 1.5}))
     fast = [f"settings.{k}={v}" for k, v in vars(FAST).items()]
-    # The three command lines in one worker process (tests/cli_worker.py), a refusal whose stderr
-    # must be exactly one line first: it starts with nothing imported, as a new process does.
-    missing, out, refused = run_commands([
+    batch = Batch([
         ("tivne.evaluate", [f"run_dir={tmp_path / 'missing'}"]),
         ("tivne.evaluate", [f"run_dir={run_dir}", *fast]),
         ("tivne.evaluate", [f"run_dir={run_dir}", "mesh.times=[99]"]),  # refused; the good summaries stay
     ], cwd=REPO, watch=[run_dir / "metrics.json"])
+    yield run_dir, batch
+    batch.stop()
+
+
+@pytest.fixture(scope="module")
+def cli(cli_started) -> tuple[Path, list[subprocess.CompletedProcess]]:
+    run_dir, batch = cli_started
+    return run_dir, batch.results()
+
+
+def test_cli_merges_into_metrics_json(cli):
+    run_dir, (missing, out, refused) = cli
     assert out.returncode == 0, out.stderr[-2000:]
     on_disk = json.loads(out.files[run_dir / "metrics.json"])
     assert on_disk["frames"] == 4 and on_disk["wall_s"] == 1.5  # kept

@@ -93,29 +93,49 @@ def start(run_dir: Path, *extra: str) -> subprocess.Popen:
                             stderr=subprocess.PIPE, text=True)
 
 
-def test_two_runs_into_one_folder_the_second_is_refused_the_first_is_whole(tmp_path):
-    run = tmp_path / "run"
-    first = start(run)
-    deadline = time.monotonic() + 240
-    while not (run / LOCK_NAME).exists():  # the first holds the folder
-        assert first.poll() is None, first.communicate()[1][-2000:]
-        assert time.monotonic() < deadline, "the first run did not start in time"
-        time.sleep(0.1)
-    # Stopped while it holds the folder, so the second meets the lock however fast this machine runs the first.
-    os.kill(first.pid, signal.SIGSTOP)
+def locked_by(run: Path, procs: dict[int, subprocess.Popen]) -> int | None:
+    """The pid of ``procs`` written in ``run``'s lock file (None while there is none)."""
     try:
-        second = start(run, "output.image_every=7")
-        _, err2 = second.communicate(timeout=240)
+        text = (run / LOCK_NAME).read_text().strip()
+    except FileNotFoundError:
+        return None
+    return int(text) if text.isdigit() and int(text) in procs else None
+
+
+def test_two_runs_into_one_folder_the_second_is_refused_the_first_is_whole(tmp_path):
+    """Two runs started at once (each spends ~10 s starting its interpreter and importing torch and
+    Lightning, which two cores do side by side): the first to take the folder is "first", whichever
+    it is, the other "second"; each run's own override tells the two apart in the folder."""
+    run = tmp_path / "run"
+    marked = [(start(run, marker), marker) for marker in ("output.image_every=0", "output.image_every=7")]
+    procs = {proc.pid: proc for proc, _ in marked}
+    try:
+        deadline = time.monotonic() + 240
+        while (holder := locked_by(run, procs)) is None:  # the first holds the folder
+            assert any(proc.poll() is None for proc in procs.values()), [proc.communicate()[1][-2000:] for proc in procs.values()]
+            assert time.monotonic() < deadline, "no run took the folder in time"
+            time.sleep(0.1)
+        (first, first_marker), (second, second_marker) = marked if marked[0][0].pid == holder else marked[::-1]
+        # Stopped while it holds the folder, so the second meets the lock however fast this machine runs the first.
+        os.kill(first.pid, signal.SIGSTOP)
+        try:
+            _, err2 = second.communicate(timeout=240)
+        finally:
+            os.kill(first.pid, signal.SIGCONT)
+        _, err1 = first.communicate(timeout=400)
     finally:
-        os.kill(first.pid, signal.SIGCONT)
-    _, err1 = first.communicate(timeout=400)
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
     errors = [line for line in err2.splitlines() if line.startswith("error:")]
     assert second.returncode == 2 and "Traceback" not in err2, err2[-2000:]
     assert len(errors) == 1 and f"another run (pid {first.pid}) is writing into this folder" in errors[0], err2[-2000:]
     assert first.returncode == 0, err1[-2000:]
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["complete"] is True and metrics["frames"] == 10
-    assert "output.image_every=7" not in yaml.safe_load((run / ".hydra" / "overrides.yaml").read_text())
+    overrides = yaml.safe_load((run / ".hydra" / "overrides.yaml").read_text())
+    assert first_marker in overrides and second_marker not in overrides
     events = [p.name for p in (run / "tb").rglob("events.out.tfevents.*")]
     assert events and all(f".{first.pid}." in name for name in events), events  # written by the first run only
     assert len([line for line in (run / "trajectory.txt").read_text().splitlines() if not line.startswith("#")]) == 10

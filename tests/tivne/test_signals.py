@@ -39,13 +39,31 @@ def wait_for_frames(run_dir: Path, proc: subprocess.Popen, frames: int, timeout:
     pytest.fail("the run did not reach the frame count in time")
 
 
-@pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
-def test_signal_writes_partial_results_and_exits_nonzero(tmp_path, signum, code):
-    run_dir = tmp_path / "run"
-    proc = start_run(run_dir)
-    wait_for_frames(run_dir, proc, 4)
-    proc.send_signal(signum)
-    _, stderr = proc.communicate(timeout=120)
+SIGNALS = {signal.SIGTERM: 143, signal.SIGINT: 130}
+
+
+@pytest.fixture(scope="module")
+def signalled(tmp_path_factory) -> dict[int, tuple[Path, subprocess.Popen, str]]:
+    """One run per signal, started together (each spends ~10 s starting its interpreter, torch and
+    Lightning: two cores do both at once) and each sent its signal once it has 4 frames; {signal:
+    (run dir, ended process, its stderr)}."""
+    dirs = {signum: tmp_path_factory.mktemp(signal.Signals(signum).name) / "run" for signum in SIGNALS}
+    runs = {signum: (run_dir, start_run(run_dir)) for signum, run_dir in dirs.items()}
+    try:
+        for signum, (run_dir, proc) in runs.items():
+            wait_for_frames(run_dir, proc, 4)
+            proc.send_signal(signum)
+        return {signum: (run_dir, proc, proc.communicate(timeout=120)[1]) for signum, (run_dir, proc) in runs.items()}
+    finally:
+        for _, proc in runs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+
+
+@pytest.mark.parametrize("signum, code", list(SIGNALS.items()))
+def test_signal_writes_partial_results_and_exits_nonzero(signalled, signum, code):
+    run_dir, proc, stderr = signalled[signum]
     assert proc.returncode == code, stderr[-2000:]
     assert "Traceback" not in stderr and "interrupted by " + signal.Signals(signum).name in stderr
     metrics = json.loads((run_dir / "metrics.json").read_text())

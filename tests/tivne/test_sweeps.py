@@ -34,9 +34,27 @@ needs_sweep = pytest.mark.skipif(
 )
 
 
-def train(*args: str, timeout: int = 240) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "tivne.train", *args], capture_output=True, text=True, timeout=timeout, cwd=REPO, env=env)
+class Started:
+    """``python -m tivne.train <args>`` started in the background, its output into files (not pipes,
+    which would stall it while nothing reads them)."""
+
+    def __init__(self, logs: Path, *args: str) -> None:
+        env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        self.out, self.err = logs.with_suffix(".out"), logs.with_suffix(".err")
+        with open(self.out, "w") as out, open(self.err, "w") as err:
+            self.proc = subprocess.Popen([sys.executable, "-m", "tivne.train", *args], stdout=out, stderr=err, text=True, cwd=REPO, env=env)
+
+    def finish(self, timeout: int = 240) -> subprocess.CompletedProcess:
+        try:
+            self.proc.wait(timeout=timeout)
+        finally:
+            self.stop()
+        return subprocess.CompletedProcess(self.proc.args, self.proc.returncode, self.out.read_text(), self.err.read_text())
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
 
 
 # ---- threads per job ------------------------------------------------------------------------------
@@ -118,20 +136,32 @@ def test_search_tracking_experiment_is_an_optuna_search():
     assert slurm._target_.endswith("SlurmLauncher") and {"partition", "timeout_min", "cpus_per_task", "gpus_per_node"} <= set(slurm)
 
 
+@pytest.fixture(scope="module")
+def sweeps(tmp_path_factory) -> dict[str, tuple[Path, Started]]:
+    """The two plugin sweeps below, started together: each is mostly new interpreters importing torch
+    and Lightning (the command, then its jobs), one core's work each, which two cores do side by side.
+    {name: (sweep dir, process)}; each test waits for its own."""
+    root = tmp_path_factory.mktemp("sweeps")
+    sweep, local = root / "search", root / "local"
+    optuna = Started(root / "optuna", "-m", "hydra/sweeper=optuna", "hydra/sweeper/sampler=random", "hydra.sweeper.sampler.seed=0",
+                     "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "hydra.sweeper.n_jobs=2", "hydra.sweeper.n_trials=2",
+                     "hydra.sweeper.max_failure_rate=1.0", *SMOKE, "tracking.max_jump_m=choice(0.3,1e-9)", f"hydra.sweep.dir={sweep}")
+    submitit = Started(root / "submitit", "-m", "hydra/launcher=submitit_local", *SMOKE, "keyframe=random", f"hydra.sweep.dir={local}")
+    procs = {"optuna": (sweep, optuna), "submitit": (local, submitit)}
+    yield procs
+    for _, started in procs.values():
+        started.stop()
+
+
 @needs_sweep
 @pytest.mark.slow  # a subprocess and two joblib workers, each importing torch and Lightning (~15 s)
-def test_optuna_on_joblib_runs_trials_side_by_side_and_marks_a_failed_trial(tmp_path):
+def test_optuna_on_joblib_runs_trials_side_by_side_and_marks_a_failed_trial(sweeps):
     """Two trials in one joblib batch: one tracks, one loses every frame (max_jump_m=1e-9); the best
     is the one that tracked, the failed one is a FAIL trial with its error in metrics.json. (The random
     sampler with seed 0 draws both values; the grid sampler of hydra-optuna-sweeper 1.3 crashes when
     the last trial of its grid fails.)"""
-    sweep = tmp_path / "search"
-    out = train(
-        "-m", "hydra/sweeper=optuna", "hydra/sweeper/sampler=random", "hydra.sweeper.sampler.seed=0",
-        "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
-        "hydra.sweeper.n_jobs=2", "hydra.sweeper.n_trials=2", "hydra.sweeper.max_failure_rate=1.0", *SMOKE,
-        "tracking.max_jump_m=choice(0.3,1e-9)", f"hydra.sweep.dir={sweep}",
-    )
+    sweep, started = sweeps["optuna"]
+    out = started.finish()
     assert out.returncode == 0, out.stderr[-3000:]
     assert "Failed experiment: error: 4 of 4 frames could not be tracked" in out.stderr + out.stdout
     best = yaml.safe_load((sweep / "optimization_results.yaml").read_text())
@@ -146,9 +176,9 @@ def test_optuna_on_joblib_runs_trials_side_by_side_and_marks_a_failed_trial(tmp_
 
 @needs_sweep
 @pytest.mark.slow  # a subprocess and a submitit job (~12 s)
-def test_submitit_local_runs_the_same_path(tmp_path):
-    sweep = tmp_path / "local"
-    out = train("-m", "hydra/launcher=submitit_local", *SMOKE, "keyframe=random", f"hydra.sweep.dir={sweep}")
+def test_submitit_local_runs_the_same_path(sweeps):
+    sweep, started = sweeps["submitit"]
+    out = started.finish()
     assert out.returncode == 0, out.stderr[-3000:]
     (run,) = find_run_dirs([sweep])
     metrics = json.loads((run / "metrics.json").read_text())
