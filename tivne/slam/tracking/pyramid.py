@@ -185,8 +185,9 @@ def pick_pixels(level: PyramidLevel, usable: torch.Tensor, stride: int, how: str
 
     "grid": the tile's top-left pixel. "gradient": the tile's usable pixel of the largest intensity
     gradient, DSO's selection in its simplest form: as many pixels as the grid, spread as evenly, each
-    where the photometric term learns the most about the motion (the point-to-plane term is indifferent).
-    The gradients are the level's warp image, which the frame reuses if it becomes a reference.
+    where the photometric term learns the most about the motion (such pixels lie on colour edges, often
+    depth edges too, so the point-to-plane term sees more boundary pixels). The gradients are the level's
+    warp image, which the frame reuses if it becomes a reference.
     """
     if how == "grid" or stride <= 1:
         grid = torch.zeros_like(usable)
