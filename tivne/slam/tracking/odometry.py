@@ -30,7 +30,7 @@ from data_modules.sensor import kinect_depth_sigma
 from tivne.config import OdometryConfig
 from tivne.geometry import adjoint_vw, eigen_range, invert_pose, pixel_coordinates, se3_step
 from tivne.slam.tracking.pyramid import PyramidLevel, build_pyramid, pick_pixels
-from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale, subsample
+from tivne.slam.tracking.robust import cauchy_weights, huber_weights, normal_equations, robust_scale, solve_damped, subsample
 
 
 @dataclass(frozen=True)
@@ -235,21 +235,6 @@ def _geometric(
     return _rows(p, n if RA is None else RA.T @ n, r), wts / scale**2, wts, factor
 
 
-def normal_equations(rows: torch.Tensor, w: torch.Tensor, block: int = 4096) -> tuple[torch.Tensor, torch.Tensor]:
-    """H = Jᵀ W J (6, 6) and g = Jᵀ W r (6,) in float64 from rows (7, N) = [J (6 rows), r] and w (N,).
-
-    Float32 partial sums over blocks of ``block`` columns are accumulated in float64: 3x faster than an
-    all-float64 product on 2 AVX2 cores, relative error ~1e-7 (one float32 product over 227k: ~1e-5).
-    """
-    rw = rows * w
-    n = rows.shape[1] // block * block
-    M = (rows[:, n:] @ rw[:, n:].T).double()
-    if n:
-        a, b = rows[:, :n].view(7, -1, block).transpose(0, 1), rw[:, :n].view(7, -1, block).permute(1, 2, 0)
-        M = M + torch.bmm(a, b).double().sum(0)
-    return M[:6, :6], M[:6, 6]
-
-
 def _linearise(
     ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig,
     scales: tuple[torch.Tensor | None, torch.Tensor | None] = (None, None),
@@ -293,13 +278,6 @@ def _linearise(
     return _Linearisation(H, g, int(valid.sum()), (used[0], used[1]), usable, usable & (dz <= cfg.inlier_sigmas), (terms[0], terms[1]))
 
 
-def _solve(H: torch.Tensor, g: torch.Tensor, damping: float) -> torch.Tensor:
-    """Levenberg–Marquardt step δ (6,) = −(H + λ diag H + ε)⁻¹ g (ε keeps an empty system solvable)."""
-    eps = 1e-12 * (float(H.diagonal().sum()) + 1.0)
-    A = H + torch.diag(damping * H.diagonal() + eps)
-    return -torch.linalg.solve(A, g)
-
-
 def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig,
                  prior: PosePrior | None = None, also: tuple[tuple[PyramidLevel, torch.Tensor], ...] = ()):
     """Gauss–Newton iterations at one level -> (T, iterations, converged, last linearisation of ``ref``).
@@ -328,7 +306,7 @@ def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tens
         if prior is not None:  # ½ eᵀ Λ e with e ≈ e0 + δ
             Lam = prior.information.to(H)
             H, g = H + Lam, g + Lam @ prior.residual(T).to(g)
-        delta = _solve(H, g, cfg.damping)
+        delta = solve_damped(H, g, cfg.damping)
         T = se3_step(delta) @ T
         step = (float(delta[3:].norm()) + float(delta[:3].norm()) / z_mid) * f
         if step < cfg.tol_pixels or (step < cfg.stall_pixels and step > 0.5 * last):

@@ -13,7 +13,6 @@ from tivne.slam.tracking.odometry import (
     OdometryConfig,
     PosePrior,
     frame_pyramid,
-    normal_equations,
     parallax_pixels,
     rgbd_odometry,
     track_pyramids,
@@ -27,7 +26,7 @@ from tivne.slam.tracking.pyramid import (
     image_gradients,
     vertex_normals,
 )
-from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale
+from tivne.slam.tracking.robust import cauchy_weights, huber_weights, normal_equations, robust_scale
 
 W, H = 160, 120
 
