@@ -193,10 +193,10 @@ class OdometryConfig(Settings):
     usable depth range in metres. tol_pixels: a level stops when the update moves the image by less than this many of its pixels (|w|·f
     + |v|·f/z̄, z̄ the median depth); stall_pixels: or by less than this without shrinking. damping: Levenberg–Marquardt λ relative to
     diag(H). max_points: at most about this many current pixels at the finest level (one in each k x k tile; 0 = all): past a few ten
-    thousand the estimate is limited by systematic errors, not by the count. pick: which pixel of a tile, "grid" (its corner) or "gradient"
-    (its strongest intensity gradient: pyramid.pick_pixels). coarse_points_ratio: each coarser level takes this many times fewer (level l:
-    max_points / ratio^l); 2 is 10-22 % faster on the real tails but loses a whipping camera. inlier_sigmas: a usable pair is an inlier
-    when its depth difference is within this many σ_pair of the sensor model (absolute: it measures the alignment, not the adaptive scale).
+    thousand, systematic errors limit it, not the count. pick: which pixel of a tile, "grid" (its corner), "gradient" (its strongest
+    intensity gradient: pyramid.pick_pixels) or "split" (photometric on the gradient's pixels, point-to-plane on the grid's).
+    coarse_points_ratio: each coarser level takes this many times fewer; 2 is 10-22 % faster on the real tails, loses a whipping camera.
+    inlier_sigmas: a usable pair is an inlier when its depth difference is within this many σ_pair of the sensor model.
     min_correspondences, min_overlap, min_inlier_ratio, max_pose_std: what OdometryResult.ok needs. depth_filter: pyramid.filter_depth."""
 
     section: ClassVar[str] = "odometry"
@@ -229,7 +229,7 @@ class OdometryConfig(Settings):
     max_pose_std: float = setting(0.01, gt=0)
     brightness_gain: bool = False  # #20: also a contrast gain (MAD ratio) before the brightness offset
     depth_filter: bool = False  # #20: bilateral filter of inverse depth before the pyramid (KinectFusion)
-    pick: str = setting("grid", choices=("grid", "gradient"))
+    pick: str = setting("grid", choices=("grid", "gradient", "split"))
 
     def check(self) -> None:
         if not (self.photometric or self.geometric):

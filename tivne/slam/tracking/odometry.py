@@ -30,7 +30,7 @@ from data_modules.sensor import kinect_depth_sigma
 from tivne.config import OdometryConfig
 from tivne.geometry import adjoint_vw, eigen_range, invert_pose, pixel_coordinates, se3_step
 from tivne.slam.tracking.pyramid import PyramidLevel, build_pyramid, pick_pixels
-from tivne.slam.tracking.robust import cauchy_weights, huber_weights, robust_scale, subsample
+from tivne.slam.tracking.robust import cauchy_weights, huber_weights, normal_equations, robust_scale, solve_damped, subsample
 
 
 @dataclass(frozen=True)
@@ -85,7 +85,8 @@ class PosePrior:
 class _Source:
     """The current frame's pixels at one level, in its colour camera's frame at the colour timestamp:
     points (3, N), intensity (N,), normals (3, N), has_colour (N,) bool (the point sees the colour image), depth_noise (N,)
-    σ(z) of their depths, parallax (N,) pixels its colour may be off (:func:`parallax_pixels`; None: registered colour)."""
+    σ(z) of their depths, parallax (N,) pixels its colour may be off (:func:`parallax_pixels`; None: registered colour),
+    terms: the columns the (photometric, point-to-plane) terms read (all of them unless ``pick`` is "split")."""
 
     points: torch.Tensor
     intensity: torch.Tensor
@@ -93,6 +94,13 @@ class _Source:
     has_colour: torch.Tensor
     depth_noise: torch.Tensor
     parallax: torch.Tensor | None = None
+    terms: tuple[slice, slice] = (slice(None), slice(None))
+
+    def columns(self, which: slice) -> "_Source":
+        """The same source restricted to the columns ``which`` (views, no copies)."""
+        parallax = None if self.parallax is None else self.parallax[which]
+        return _Source(self.points[:, which], self.intensity[which], self.normals[:, which], self.has_colour[which],
+                       self.depth_noise[which], parallax)
 
 
 def _sample(image: torch.Tensor, u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
@@ -116,8 +124,17 @@ def _in_image(u: torch.Tensor, v: torch.Tensor, z: torch.Tensor, shape: tuple[in
 def _source(level: PyramidLevel, max_points: float, T_rgb_depth: torch.Tensor | None, cfg: OdometryConfig) -> _Source:
     sel = level.usable
     stride = math.ceil(math.sqrt(int(sel.sum()) / max(max_points, 1.0))) if max_points > 0 else 1
-    sel = pick_pixels(level, sel, stride, cfg.pick) if stride > 1 else sel
-    (points, normals), intensity = level.points(sel), level.intensity[sel]
+    terms = (slice(None), slice(None))
+    if cfg.pick == "split" and stride > 1:  # the photometric term on strong gradients, point-to-plane on the even grid
+        grid, strong = pick_pixels(level, sel, stride, "grid"), pick_pixels(level, sel, stride, "gradient")
+        parts = (strong & ~grid, strong & grid, grid & ~strong)  # ordered so that each term reads one slice
+        first, both = int(parts[0].sum()), int(parts[1].sum())
+        terms, sel = (slice(0, first + both), slice(first, None)), grid | strong
+        points, normals = (torch.cat(x, 1) for x in zip(*(level.points(m) for m in parts)))
+        intensity = torch.cat([level.intensity[m] for m in parts])
+    else:
+        sel = pick_pixels(level, sel, stride, cfg.pick) if stride > 1 else sel
+        (points, normals), intensity = level.points(sel), level.intensity[sel]
     if T_rgb_depth is None:
         has_colour = torch.ones_like(intensity, dtype=torch.bool)
     else:  # depth taken at another time than colour: move the points to the colour time, read their colour there
@@ -125,7 +142,7 @@ def _source(level: PyramidLevel, max_points: float, T_rgb_depth: torch.Tensor | 
         points, normals = R @ points + t[:, None], R @ normals
         u, v, z = _project(points, level.K)
         intensity, has_colour = _sample(level.intensity[None, None], u, v)[0], _in_image(u, v, z, sel.shape, cfg.min_depth)
-    return _Source(points, intensity, normals, has_colour, kinect_depth_sigma(points[2], cfg.depth_sigma))
+    return _Source(points, intensity, normals, has_colour, kinect_depth_sigma(points[2], cfg.depth_sigma), terms=terms)
 
 
 @dataclass(frozen=True)
@@ -235,21 +252,6 @@ def _geometric(
     return _rows(p, n if RA is None else RA.T @ n, r), wts / scale**2, wts, factor
 
 
-def normal_equations(rows: torch.Tensor, w: torch.Tensor, block: int = 4096) -> tuple[torch.Tensor, torch.Tensor]:
-    """H = Jᵀ W J (6, 6) and g = Jᵀ W r (6,) in float64 from rows (7, N) = [J (6 rows), r] and w (N,).
-
-    Float32 partial sums over blocks of ``block`` columns are accumulated in float64: 3x faster than an
-    all-float64 product on 2 AVX2 cores, relative error ~1e-7 (one float32 product over 227k: ~1e-5).
-    """
-    rw = rows * w
-    n = rows.shape[1] // block * block
-    M = (rows[:, n:] @ rw[:, n:].T).double()
-    if n:
-        a, b = rows[:, :n].view(7, -1, block).transpose(0, 1), rw[:, :n].view(7, -1, block).permute(1, 2, 0)
-        M = M + torch.bmm(a, b).double().sum(0)
-    return M[:6, :6], M[:6, 6]
-
-
 def _linearise(
     ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig,
     scales: tuple[torch.Tensor | None, torch.Tensor | None] = (None, None),
@@ -281,23 +283,18 @@ def _linearise(
     H, g = torch.zeros(6, 6, dtype=torch.float64, device=p.device), torch.zeros(6, dtype=torch.float64, device=p.device)
     terms, used = [None, None], [None, None]
     if cfg.photometric:
-        dp_dz = (p - t[:, None]) / src.points[2]  # the current point moves along its ray with its depth
-        rows, w_norm, rms_w, used[0] = _photometric(ref, src, p, (u, v), dp_dz, valid, cfg, scales[0])
+        c = src.terms[0]
+        dp_dz = (p[:, c] - t[:, None]) / src.points[2, c]  # the current point moves along its ray with its depth
+        rows, w_norm, rms_w, used[0] = _photometric(ref, src.columns(c), p[:, c], (u[c], v[c]), dp_dz, valid[c], cfg, scales[0])
         H, g = normal_equations(rows, w_norm * cfg.photometric_weight)
         terms[0] = (rows[6], rms_w)
     if cfg.geometric:
-        n_cur = (R if RA is None else RA @ R) @ src.normals
-        rows, w_norm, rms_w, used[1] = _geometric(n_cur, p, pd, geo, valid, sigma, RA, cfg, scales[1])
+        c = src.terms[1]
+        n_cur = (R if RA is None else RA @ R) @ src.normals[:, c]
+        rows, w_norm, rms_w, used[1] = _geometric(n_cur, p[:, c], pd[:, c], geo[:, c], valid[c], sigma[c], RA, cfg, scales[1])
         Hk, gk = normal_equations(rows, w_norm)
         H, g, terms[1] = H + Hk, g + gk, (rows[6], rms_w)
     return _Linearisation(H, g, int(valid.sum()), (used[0], used[1]), usable, usable & (dz <= cfg.inlier_sigmas), (terms[0], terms[1]))
-
-
-def _solve(H: torch.Tensor, g: torch.Tensor, damping: float) -> torch.Tensor:
-    """Levenberg–Marquardt step δ (6,) = −(H + λ diag H + ε)⁻¹ g (ε keeps an empty system solvable)."""
-    eps = 1e-12 * (float(H.diagonal().sum()) + 1.0)
-    A = H + torch.diag(damping * H.diagonal() + eps)
-    return -torch.linalg.solve(A, g)
 
 
 def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig,
@@ -328,7 +325,7 @@ def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tens
         if prior is not None:  # ½ eᵀ Λ e with e ≈ e0 + δ
             Lam = prior.information.to(H)
             H, g = H + Lam, g + Lam @ prior.residual(T).to(g)
-        delta = _solve(H, g, cfg.damping)
+        delta = solve_damped(H, g, cfg.damping)
         T = se3_step(delta) @ T
         step = (float(delta[3:].norm()) + float(delta[:3].norm()) / z_mid) * f
         if step < cfg.tol_pixels or (step < cfg.stall_pixels and step > 0.5 * last):
