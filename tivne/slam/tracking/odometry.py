@@ -98,6 +98,8 @@ class _Source:
 
     def columns(self, which: slice) -> "_Source":
         """The same source restricted to the columns ``which`` (views, no copies)."""
+        if which == slice(None):  # every pick but split: each term reads every column
+            return self
         parallax = None if self.parallax is None else self.parallax[which]
         return _Source(self.points[:, which], self.intensity[which], self.normals[:, which], self.has_colour[which],
                        self.depth_noise[which], parallax)
