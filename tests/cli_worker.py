@@ -71,32 +71,55 @@ def run_module(module: str, args: Sequence[str], patch: contextlib.AbstractConte
     return code, out[0], out[1]
 
 
+def end(proc: subprocess.Popen) -> None:
+    """Kill ``proc`` if it still runs and reap it (a test's cleanup, whatever failed before it)."""
+    if proc.poll() is None:
+        proc.kill()
+        proc.communicate()
+
+
+class Background:
+    """``cmd`` started in ``cwd`` in the background with the repository on its PYTHONPATH (environment
+    ``env``, default this one's); its stdout and stderr go to ``logs``.out / .err, not pipes, so it never
+    stalls while nothing reads them."""
+
+    def __init__(self, cmd: Sequence[str], cwd: Path, logs: Path, env: dict[str, str] | None = None) -> None:
+        env = dict(os.environ if env is None else env)
+        env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+        self.out, self.err = logs.with_suffix(".out"), logs.with_suffix(".err")
+        with open(self.out, "w") as stdout, open(self.err, "w") as stderr:
+            self.proc = subprocess.Popen(list(cmd), cwd=cwd, env=env, stdout=stdout, stderr=stderr, text=True)
+
+    def finish(self, timeout: float = 600) -> subprocess.CompletedProcess:
+        """Wait (killed after ``timeout`` s): its exit status, stdout and stderr."""
+        try:
+            self.proc.wait(timeout=timeout)
+        finally:
+            self.stop()
+        return subprocess.CompletedProcess(self.proc.args, self.proc.returncode, self.out.read_text(), self.err.read_text())
+
+    def stop(self) -> None:
+        end(self.proc)
+
+
 class Batch:
     """``commands`` ([(module, args), ...]) started in order in one new worker process in ``cwd``
-    (environment ``env``, default this one's), in the background: :meth:`results` waits for them.
-    The worker's own output goes to files, so it never stalls while nothing reads it."""
+    (environment ``env``, default this one's), in the background: :meth:`results` waits for them."""
 
     def __init__(self, commands: Sequence[tuple[str, Sequence[str]]], cwd: Path, env: dict[str, str] | None = None,
                  watch: Sequence[Path] = (), timeout: float = 600) -> None:
         self.commands, self.timeout = [(m, list(a)) for m, a in commands], timeout
         self.tmp = tempfile.TemporaryDirectory(prefix="cli-worker-")
         self.out = Path(self.tmp.name) / "results.json"
-        env = dict(os.environ if env is None else env)
-        env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
         cmd = [sys.executable, __file__, "--commands", json.dumps(self.commands), "--out", str(self.out),
                "--watch", json.dumps([str(p) for p in watch])]
-        with open(Path(self.tmp.name) / "stdout", "w") as stdout, open(Path(self.tmp.name) / "stderr", "w") as stderr:
-            self.proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=stdout, stderr=stderr, text=True)
+        self.worker = Background(cmd, cwd, Path(self.tmp.name) / "worker", env)
 
     def results(self) -> list[subprocess.CompletedProcess]:
         """One CompletedProcess (returncode, stdout, stderr) per command, whose ``files`` holds the
         text of each ``watch`` path (None when absent) as that command left it."""
-        try:
-            self.proc.wait(timeout=self.timeout)
-        finally:
-            self.stop()
-        stderr = (Path(self.tmp.name) / "stderr").read_text()
-        assert self.proc.returncode == 0 and self.out.is_file(), stderr[-3000:]
+        worker = self.worker.finish(self.timeout)
+        assert worker.returncode == 0 and self.out.is_file(), worker.stderr[-3000:]
         results = json.loads(self.out.read_text())
         self.tmp.cleanup()
         done = []
@@ -106,9 +129,7 @@ class Batch:
         return done
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
+        self.worker.stop()
 
 
 def run_commands(commands: Sequence[tuple[str, Sequence[str]]], cwd: Path, env: dict[str, str] | None = None,

@@ -19,6 +19,8 @@ from tivne import runlock
 from tivne.runlock import LOCK_NAME, RunLocked, acquire, is_held, release, run_lock
 
 REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO / "tests"))
+from cli_worker import end  # noqa: E402
 
 
 def _hold(run: str, held) -> None:
@@ -125,9 +127,7 @@ def test_two_runs_into_one_folder_the_second_is_refused_the_first_is_whole(tmp_p
         _, err1 = first.communicate(timeout=400)
     finally:
         for proc in procs.values():
-            if proc.poll() is None:
-                proc.kill()
-                proc.communicate()
+            end(proc)
     errors = [line for line in err2.splitlines() if line.startswith("error:")]
     assert second.returncode == 2 and "Traceback" not in err2, err2[-2000:]
     assert len(errors) == 1 and f"another run (pid {first.pid}) is writing into this folder" in errors[0], err2[-2000:]

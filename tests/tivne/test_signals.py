@@ -16,6 +16,8 @@ from data_modules.tables import read_tum_trajectory
 from tivne.slam.checkpoint import load_checkpoint
 
 REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO / "tests"))
+from cli_worker import end  # noqa: E402
 
 
 def start_run(run_dir: Path) -> subprocess.Popen:
@@ -56,9 +58,7 @@ def signalled(tmp_path_factory) -> dict[int, tuple[Path, subprocess.Popen, str]]
         return {signum: (run_dir, proc, proc.communicate(timeout=120)[1]) for signum, (run_dir, proc) in runs.items()}
     finally:
         for _, proc in runs.values():
-            if proc.poll() is None:
-                proc.kill()
-                proc.communicate()
+            end(proc)
 
 
 @pytest.mark.parametrize("signum, code", list(SIGNALS.items()))

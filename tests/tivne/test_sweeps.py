@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -21,6 +19,9 @@ from tivne.reporting.runs import find_run_dirs, read_row, results_table
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 REPO = CONF.parent
+sys.path.insert(0, str(REPO / "tests"))
+from cli_worker import Background  # noqa: E402
+
 SMOKE = ["experiment=smoke", "dataset.width=80", "dataset.height=60", "dataset.cache_dir=null"]
 
 
@@ -34,27 +35,9 @@ needs_sweep = pytest.mark.skipif(
 )
 
 
-class Started:
-    """``python -m tivne.train <args>`` started in the background, its output into files (not pipes,
-    which would stall it while nothing reads them)."""
-
-    def __init__(self, logs: Path, *args: str) -> None:
-        env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        self.out, self.err = logs.with_suffix(".out"), logs.with_suffix(".err")
-        with open(self.out, "w") as out, open(self.err, "w") as err:
-            self.proc = subprocess.Popen([sys.executable, "-m", "tivne.train", *args], stdout=out, stderr=err, text=True, cwd=REPO, env=env)
-
-    def finish(self, timeout: int = 240) -> subprocess.CompletedProcess:
-        try:
-            self.proc.wait(timeout=timeout)
-        finally:
-            self.stop()
-        return subprocess.CompletedProcess(self.proc.args, self.proc.returncode, self.out.read_text(), self.err.read_text())
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
+def train(logs: Path, *args: str) -> Background:
+    """``python -m tivne.train <args>`` started in the background, its output in ``logs``.out / .err."""
+    return Background([sys.executable, "-m", "tivne.train", *args], REPO, logs)
 
 
 # ---- threads per job ------------------------------------------------------------------------------
@@ -137,16 +120,16 @@ def test_search_tracking_experiment_is_an_optuna_search():
 
 
 @pytest.fixture(scope="module")
-def sweeps(tmp_path_factory) -> dict[str, tuple[Path, Started]]:
+def sweeps(tmp_path_factory) -> dict[str, tuple[Path, Background]]:
     """The two plugin sweeps below, started together: each is mostly new interpreters importing torch
     and Lightning (the command, then its jobs), one core's work each, which two cores do side by side.
     {name: (sweep dir, process)}; each test waits for its own."""
     root = tmp_path_factory.mktemp("sweeps")
     sweep, local = root / "search", root / "local"
-    optuna = Started(root / "optuna", "-m", "hydra/sweeper=optuna", "hydra/sweeper/sampler=random", "hydra.sweeper.sampler.seed=0",
+    optuna = train(root / "optuna", "-m", "hydra/sweeper=optuna", "hydra/sweeper/sampler=random", "hydra.sweeper.sampler.seed=0",
                      "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "hydra.sweeper.n_jobs=2", "hydra.sweeper.n_trials=2",
                      "hydra.sweeper.max_failure_rate=1.0", *SMOKE, "tracking.max_jump_m=choice(0.3,1e-9)", f"hydra.sweep.dir={sweep}")
-    submitit = Started(root / "submitit", "-m", "hydra/launcher=submitit_local", *SMOKE, "keyframe=random", f"hydra.sweep.dir={local}")
+    submitit = train(root / "submitit", "-m", "hydra/launcher=submitit_local", *SMOKE, "keyframe=random", f"hydra.sweep.dir={local}")
     procs = {"optuna": (sweep, optuna), "submitit": (local, submitit)}
     yield procs
     for _, started in procs.values():
@@ -161,7 +144,7 @@ def test_optuna_on_joblib_runs_trials_side_by_side_and_marks_a_failed_trial(swee
     sampler with seed 0 draws both values; the grid sampler of hydra-optuna-sweeper 1.3 crashes when
     the last trial of its grid fails.)"""
     sweep, started = sweeps["optuna"]
-    out = started.finish()
+    out = started.finish(240)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "Failed experiment: error: 4 of 4 frames could not be tracked" in out.stderr + out.stdout
     best = yaml.safe_load((sweep / "optimization_results.yaml").read_text())
@@ -178,7 +161,7 @@ def test_optuna_on_joblib_runs_trials_side_by_side_and_marks_a_failed_trial(swee
 @pytest.mark.slow  # a subprocess and a submitit job (~12 s)
 def test_submitit_local_runs_the_same_path(sweeps):
     sweep, started = sweeps["submitit"]
-    out = started.finish()
+    out = started.finish(240)
     assert out.returncode == 0, out.stderr[-3000:]
     (run,) = find_run_dirs([sweep])
     metrics = json.loads((run / "metrics.json").read_text())

@@ -86,7 +86,7 @@ class _Source:
     """The current frame's pixels at one level, in its colour camera's frame at the colour timestamp:
     points (3, N), intensity (N,), normals (3, N), has_colour (N,) bool (the point sees the colour image), depth_noise (N,)
     σ(z) of their depths, parallax (N,) pixels its colour may be off (:func:`parallax_pixels`; None: registered colour),
-    terms: the columns the (photometric, point-to-plane) terms read (all of them unless ``pick`` is "split")."""
+    terms: the columns the (photometric, point-to-plane) terms read (all of them unless a "split" pick thinned the level)."""
 
     points: torch.Tensor
     intensity: torch.Tensor
