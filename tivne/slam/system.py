@@ -70,10 +70,12 @@ class TivNeSLAM(L.LightningModule):
             self.flush()  # the stream's last frame, while the Trainer still takes self.log
 
     def _step(self, frame: Frame, next_frame: Frame | None, progress: bool = True) -> None:
-        with deferred_interrupts():  # SIGINT / SIGTERM take effect once the frame is whole
+        # SIGINT / SIGTERM take effect once the frame is whole, its logging too: raised inside TensorBoard's
+        # queue.put, a signal left the event writer's task count off and the run ended with a traceback (exit 1).
+        with deferred_interrupts():
             report = self.loop.step(frame, next_frame)
             self.writer.after_frame(self.loop, report)
-        self.log_report(report, progress)
+            self.log_report(report, progress)
 
     def log_report(self, report: FrameReport, progress: bool = True) -> None:
         """Per-frame scalars (against the frame index), every 10th frame the ATE so far, every
