@@ -334,19 +334,19 @@ class ObjectTracker:
             refs = add_reference(refs, Reference(crop_pyramid(pyramid, mask), C, tau, int(mask.sum()), pts), MAX_REFERENCES)
         self.live[oid] = _Live(refs, pts, extent(pts), t, self.live[oid].rms if oid in self.live else [])
 
-    def _predict(self, oid: int, mask: torch.Tensor, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float) -> torch.Tensor:
+    def _predict(self, oid: int, mask: torch.Tensor | None, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float) -> torch.Tensor:
         """Constant velocity: the track's last two observations carried on (``pose_at``), when the
         object was seen within ``max_gap_s`` or those two were no more than that apart; else its
-        last pose. After a gap that pose is moved so the last observed points' centre lands on the
-        centre of this observation, which only picks the predicted side; the stored view of that
-        side that showed about as much as now then centres it (:func:`comparable_view`,
-        :func:`centred_on`: the last view may have been a sliver, whose centre is not a whole view's)."""
+        last pose. After a gap, and on a new track's second view (no velocity yet), that pose is moved
+        so the last observed points' centre lands on this observation's (``mask``; None: not moved),
+        which only picks the predicted side; the stored view of that side that showed about as much as
+        now then centres it (:func:`comparable_view`, :func:`centred_on`: a sliver's centre is not a whole view's)."""
         track, live = self.tracks[oid], self.live.get(oid)
         recent = live is not None and t - live.last_time <= self.cfg.max_gap_s
         # Just seen: carried on at the track's last velocity, across a gap if it had one (held still it
         # lags a moving object, and the prior then holds the lag); after a gap only a steady velocity.
         T = track.pose_at(tau) if recent or self._steady(oid) else track.poses()[-1].clone()
-        if recent:
+        if recent and (len(track) > 1 or mask is None):  # one pose: held still, a fast object leaves the basin
             return T
         if live is not None and len(live.points):
             centre_now = world_points(mask, depth, self.K, T_wc).mean(0)
@@ -370,7 +370,7 @@ class ObjectTracker:
         followed = [k for k, lv in self.live.items() if t - lv.last_time <= self.cfg.max_gap_s]
         scores = np.zeros((len(followed), len(segments)))
         for i, k in enumerate(followed):
-            T_pred = self._predict(k, segments[0] if segments else None, depth, T_wc, tau, t)
+            T_pred = self._predict(k, None, depth, T_wc, tau, t)
             footprint = projected_mask(transform_points(T_pred, self.live[k].points), T_wc, self.K, shape)
             scores[i] = [iou(footprint, s) for s in segments]
         out, taken = {}, set()
