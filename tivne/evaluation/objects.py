@@ -3,8 +3,10 @@
 GT object trajectories come from the synthetic family (``object_poses(t)``) and the Co-Fusion
 layout (``trajectories/gt-<name>-<id>.txt``, ``object_trajectories``). Each GT object is matched to
 the written track that follows it: among the tracks whose origin stays within ``MATCH_DISTANCE_M``
-of the GT object's centre (mean over their common frames, in the GT world), the one with the most
-poses. So a run with geometric masks (its own ids) is scored like one with dataset ids.
+of the GT object's centre (mean over their common frames, in the GT world; beyond the object's
+bounding sphere where the dataset knows its extent: a track's origin is the centre of the points it
+first saw, on the seen side of a large object), the one with the most poses. So a run with geometric
+masks (its own ids) is scored like one with dataset ids.
 """
 
 from __future__ import annotations
@@ -50,9 +52,18 @@ def _gt_at(gt: tuple[np.ndarray, torch.Tensor], stamps: np.ndarray) -> tuple[np.
     return poses.numpy()[valid], valid
 
 
+def match_reach(view: SequenceView, name: str, t: float) -> float:
+    """Metres a track's origin may stay from GT object ``name``'s centre and still follow it:
+    ``MATCH_DISTANCE_M`` beyond the object's bounding sphere at time ``t`` where the dataset has its
+    box (the synthetic family), else ``MATCH_DISTANCE_M``."""
+    box = getattr(view.base, "dynamic_box", None)
+    return MATCH_DISTANCE_M + (float(torch.as_tensor(box(t, name)[1]).norm()) if box is not None else 0.0)
+
+
 def match_tracks(tracks: dict[int, tuple[np.ndarray, torch.Tensor]], gt: dict[str, tuple[np.ndarray, torch.Tensor]],
-                 world: np.ndarray) -> dict[str, int]:
-    """{GT name: track id} (see the module docstring); a track serves one GT object at most."""
+                 world: np.ndarray, reach: dict[str, float] | None = None) -> dict[str, int]:
+    """{GT name: track id} (see the module docstring); a track serves one GT object at most.
+    reach: per GT name, how far (m) a track's origin may stay from its centre (default ``MATCH_DISTANCE_M``)."""
     candidates = []
     for name, traj in gt.items():
         for k, (stamps, poses) in tracks.items():
@@ -61,7 +72,7 @@ def match_tracks(tracks: dict[int, tuple[np.ndarray, torch.Tensor]], gt: dict[st
                 continue
             origin = (world[None] @ poses.numpy()[valid])[:, :3, 3]
             d = float(np.linalg.norm(origin - g[:, :3, 3], axis=1).mean())
-            if d <= MATCH_DISTANCE_M:
+            if d <= (reach or {}).get(name, MATCH_DISTANCE_M):
                 candidates.append((-int(valid.sum()), d, name, k))
     out, used = {}, set()
     for _, _, name, k in sorted(candidates):
@@ -85,7 +96,7 @@ def object_section(run: RunDir, view: SequenceView, world: np.ndarray | None) ->
         return out | {"object_eval_reason": f"dataset {view.name} has no ground-truth object trajectories"}
     if world is None:
         return out | {"object_eval_reason": "no SLAM-to-world alignment (no ground-truth camera pose)"}
-    matched = match_tracks(tracks, gt, world)
+    matched = match_tracks(tracks, gt, world, {name: match_reach(view, name, float(traj[0][0])) for name, traj in gt.items()})
     worst_t, worst_r = [], []
     for name in gt:
         if name not in matched:
