@@ -19,6 +19,7 @@ import torch
 from data_modules.poses import interpolate_poses
 from data_modules.sequence import SequenceView
 from data_modules.tables import read_tum_trajectory
+from tivne.evaluation.ground_truth import ground_truth_of, object_box
 from tivne.metrics.objects import object_trajectory_error
 from tivne.slam.outputs import RunDir
 
@@ -56,8 +57,8 @@ def match_reach(view: SequenceView, name: str, t: float) -> float:
     """Metres a track's origin may stay from GT object ``name``'s centre and still follow it:
     ``MATCH_DISTANCE_M`` beyond the object's bounding sphere at time ``t`` where the dataset has its
     box (the synthetic family), else ``MATCH_DISTANCE_M``."""
-    box = getattr(view.base, "dynamic_box", None)
-    return MATCH_DISTANCE_M + (float(torch.as_tensor(box(t, name)[1]).norm()) if box is not None else 0.0)
+    gt = ground_truth_of(view)
+    return MATCH_DISTANCE_M + (float(np.linalg.norm(object_box(gt, t, name).half_extents)) if gt is not None else 0.0)
 
 
 def match_tracks(tracks: dict[int, tuple[np.ndarray, torch.Tensor]], gt: dict[str, tuple[np.ndarray, torch.Tensor]],
