@@ -62,9 +62,9 @@ def match_reach(view: SequenceView, name: str, t: float) -> float:
 
 
 def match_tracks(tracks: dict[int, tuple[np.ndarray, torch.Tensor]], gt: dict[str, tuple[np.ndarray, torch.Tensor]],
-                 world: np.ndarray, reach: dict[str, float] | None = None) -> dict[str, int]:
+                 world: np.ndarray, reach: dict[str, float]) -> dict[str, int]:
     """{GT name: track id} (see the module docstring); a track serves one GT object at most.
-    reach: per GT name, how far (m) a track's origin may stay from its centre (default ``MATCH_DISTANCE_M``)."""
+    reach: per GT name, how far (m) a track's origin may stay from its centre (:func:`match_reach`)."""
     candidates = []
     for name, traj in gt.items():
         for k, (stamps, poses) in tracks.items():
@@ -73,7 +73,7 @@ def match_tracks(tracks: dict[int, tuple[np.ndarray, torch.Tensor]], gt: dict[st
                 continue
             origin = (world[None] @ poses.numpy()[valid])[:, :3, 3]
             d = float(np.linalg.norm(origin - g[:, :3, 3], axis=1).mean())
-            if d <= (reach or {}).get(name, MATCH_DISTANCE_M):
+            if d <= reach[name]:
                 candidates.append((-int(valid.sum()), d, name, k))
     out, used = {}, set()
     for _, _, name, k in sorted(candidates):

@@ -335,8 +335,8 @@ class ObjectTracker:
         self.live[oid] = _Live(refs, pts, extent(pts), t, self.live[oid].rms if oid in self.live else [])
 
     def _predict(self, oid: int, mask: torch.Tensor | None, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float) -> torch.Tensor:
-        """Constant velocity: the track's last two observations carried on (``pose_at``), when the
-        object was seen within ``max_gap_s`` or those two were no more than that apart; else its
+        """Constant velocity: the track carried on at its end's velocity (``pose_at``), when the object
+        was seen within ``max_gap_s`` or its last two observations were no more than that apart; else its
         last pose. After a gap, and on a new track's second view (no velocity yet), that pose is moved
         so the last observed points' centre lands on this observation's (``mask``; None: not moved),
         which only picks the predicted side; the stored view of that side that showed about as much as
