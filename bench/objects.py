@@ -50,22 +50,28 @@ def overrides(scene: str, source: str, frames: int, size: tuple[int, int], threa
             "trainer.progress_bar=false", "output.image_every=0", f"runtime.threads={threads}"]
 
 
+def compose_config(args: list[str]):
+    """The run config of ``args`` (:func:`overrides`), composed as ``tivne.train`` composes it."""
+    from hydra import compose, initialize_config_dir
+
+    from tivne.cli import register_defaults
+
+    register_defaults()  # the config nodes conf/*.yaml compose onto
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
+        return compose("config", overrides=args)
+
+
 def child(run_dir: str, args: list[str]) -> None:
     """Run one sequence, then print its object figures as one JSON line."""
-    from hydra import compose, initialize_config_dir
     from hydra.utils import instantiate
 
     from data_modules.sequence import SequenceView
-    from tivne.cli import register_defaults
     from tivne.evaluation.objects import object_section
     from tivne.evaluation.run import world_from_slam
     from tivne.slam.outputs import RunDir
     from tivne.slam.run import run
 
-    register_defaults()  # the config nodes conf/*.yaml compose onto
-
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=args)
+    cfg = compose_config(args)
     metrics = run(cfg, Path(run_dir))
     view = SequenceView(instantiate(cfg.dataset), **dict(cfg.data))
     world, _ = world_from_slam("first_camera", view, None)
@@ -81,19 +87,15 @@ def tracker_alone(run_dir: str, args: list[str]) -> None:
 
     import numpy as np
     import torch
-    from hydra import compose, initialize_config_dir
     from hydra.utils import instantiate
 
     from data_modules.sequence import SequenceView
-    from tivne.cli import register_defaults
     from tivne.config import ObjectsConfig
     from tivne.evaluation.objects import object_section
     from tivne.slam.objects import ObjectTracker
     from tivne.slam.outputs import RunDir
 
-    register_defaults()
-    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=args)
+    cfg = compose_config(args)
     torch.set_num_threads(int(cfg.runtime.threads))
     dataset = instantiate(cfg.dataset)
     tracker = ObjectTracker(ObjectsConfig(track=True), dataset.intrinsics.K())
@@ -118,7 +120,8 @@ def run_one(scene: str, source: str, noise: int, ns: argparse.Namespace) -> dict
     shutil.rmtree(run_dir, ignore_errors=True)  # the figures are in its stdout; the run folder is ~50 MB
     lines = [line for line in proc.stdout.splitlines() if line.startswith("FIGURES ")]
     if proc.returncode != 0 or not lines:
-        print(f"{scene}/{source}/{noise}: failed (exit {proc.returncode}): {(proc.stderr.strip().splitlines() or ['?'])[-1]}", file=sys.stderr)
+        last = (proc.stderr.strip().splitlines() or ["?"])[-1]
+        print(f"{scene}/{source}/{noise}: failed (exit {proc.returncode}): {last}", file=sys.stderr)
         return None
     print(f"done: {scene}/{source}/{noise}", file=sys.stderr, flush=True)
     return json.loads(lines[-1][len("FIGURES "):])
@@ -134,8 +137,8 @@ def objects_cell(r: dict) -> str:
 
 
 def table(results: dict[tuple[str, str, int], dict | None]) -> str:
-    lines = ["| preset | masks | noise seed | per object: ATE cm / rot deg (poses) | tracks written | camera ATE cm | s/frame | objects s/frame |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| preset | masks | noise seed | per object: ATE cm / rot deg (poses) | tracks written | camera ATE cm | s/frame "
+             "| objects s/frame |", "|---|---|---|---|---|---|---|---|"]
     for (scene, source, noise), r in results.items():
         if r is None:
             lines.append(f"| {scene} | {source} | {noise} | failed | | | | |")
