@@ -14,6 +14,8 @@ import torch
 # (6 decimals is usual) while frame times may not be (index / fps), so the last frame can land a
 # microsecond after the last pose; 0.1 ms is far above that rounding and far below a frame period.
 TIME_TOLERANCE_S = 1e-4
+# Seconds over which pose_on_track reads an end's velocity (so one noisy pose does not set it).
+VELOCITY_BASELINE_S = 0.1
 
 
 def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
@@ -217,7 +219,8 @@ def hermite(p0: torch.Tensor, v0: torch.Tensor, p1: torch.Tensor, v1: torch.Tens
     return (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * span * v0 + (3 * s2 - 2 * s3) * p1 + (s3 - s2) * span * v1
 
 
-def pose_on_track(times: np.ndarray, poses: torch.Tensor, t: float, baseline: float = 0.1, pivot: torch.Tensor | None = None) -> torch.Tensor:
+def pose_on_track(times: np.ndarray, poses: torch.Tensor, t: float, baseline: float = VELOCITY_BASELINE_S,
+                  pivot: torch.Tensor | None = None) -> torch.Tensor:
     """The pose (4, 4) float64 of a sampled trajectory at any time ``t``.
 
     Between samples up to ``baseline`` apart: :func:`interpolate_poses` (SLERP + linear). Outside

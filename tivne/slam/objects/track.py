@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from data_modules.poses import pose_on_track
+from data_modules.poses import TIME_TOLERANCE_S, VELOCITY_BASELINE_S, pose_on_track
 
 # τ closer than this to an observed τ is that observation (repeated adds replace it).
 TAU_TOLERANCE = 1e-9
@@ -26,6 +26,20 @@ def _pose64(pose: torch.Tensor | np.ndarray) -> torch.Tensor:
     if T.shape != (4, 4) or not bool(torch.isfinite(T).all()):
         raise ValueError(f"an object pose must be a finite (4, 4) matrix, got shape {tuple(T.shape)}")
     return T
+
+
+def run_velocity(stamps: list[float], taus: list[float], max_gap: float) -> tuple[bool, bool]:
+    """Of a track observed at the increasing ``stamps`` (seconds; field times ``taus``): whether it has
+    an end velocity (its last two views at most ``max_gap`` apart), and whether
+    :meth:`ObjectTrack.pose_at` reads that velocity within its last run of views (none more than
+    ``max_gap`` after the one before): the run is the whole track or spans more than
+    VELOCITY_BASELINE_S. A shorter run after a gap has it read across the gap, an average over it,
+    wrong for an object that turned back unseen."""
+    first = len(stamps) - 1
+    while first > 0 and stamps[first] - stamps[first - 1] <= max_gap:
+        first -= 1
+    steady = first < len(stamps) - 1
+    return steady, steady and (first == 0 or taus[-1] - taus[first] > VELOCITY_BASELINE_S + TIME_TOLERANCE_S)
 
 
 class ObjectTrack:

@@ -53,7 +53,7 @@ from tivne.slam.objects.references import (
     pick_reference,
     shows_enough,
 )
-from tivne.slam.objects.track import ObjectTrack
+from tivne.slam.objects.track import ObjectTrack, run_velocity
 from tivne.slam.outputs import RunDir
 from tivne.slam.tracking.odometry import OdometryResult, PosePrior, frame_pyramid, track_pyramids
 from tivne.slam.tracking.pyramid import PyramidLevel, crop_pyramid
@@ -62,8 +62,7 @@ from tivne.slam.tracking.pyramid import PyramidLevel, crop_pyramid
 MIN_WRITTEN_POSES = 3
 # The least share of an object's pixels its reference must see for a pose to count.
 MIN_OVERLAP = 0.1
-# Keyframe observations kept per object: enough for views REUSE_ANGLE_DEG apart all around one
-# axis (beyond it the most redundant view goes, see add_reference).
+# Keyframe observations kept per object: views REUSE_ANGLE_DEG apart all round one axis (add_reference).
 MAX_REFERENCES = 32
 # Stored views an object's view is aligned to at once (the reference and its nearest companions).
 JOINT_VIEWS = 5
@@ -223,6 +222,7 @@ class ObjectTracker:
         if live is None or live.reference is None:  # resumed: no reference pyramid kept
             self._new_reference(oid, inner, pyramid, depth, T_wc, T_pred, tau, t)
             return ObjectObservation(oid, tau, t, T_pred, pixels, False, reidentified=reid, new_reference=True)
+        steady, in_run = self._steady(oid)
         if back:  # it may have turned by anything meanwhile: several rotations, the best alignment
             ref, res = reacquire(live.references, track, pyramid, int(inner.sum()), T_pred, T_wc,
                                  world_points(inner, depth, self.K, T_wc).mean(0), self.odo, live.typical_rms())
@@ -230,13 +230,13 @@ class ObjectTracker:
             C_pred = camera_in_object(T_pred, T_wc)
             ref = pick_reference(live.references, C_pred, REUSE_ANGLE_DEG)
             init = odometry_init(T_pred, T_wc, ref.C)
-            # The motion prior only once the track has a velocity again (after a gap it holds the last pose).
-            prior = self._prior(init, ref.C, t - live.last_time) if self._steady(oid) else None
+            prior = self._prior(init, ref.C, t - live.last_time) if steady else None  # none after a gap until it moves again
             also = tuple((o.pyramid, invert_pose(o.C) @ ref.C) for o in companions(live.references, ref, C_pred, 2 * REUSE_ANGLE_DEG, JOINT_VIEWS - 1))
             res = track_pyramids(ref.pyramid, pyramid, init, self.odo, prior=prior, also=also)
         T_wo = object_pose(T_wc, res.T_ref_cur, ref.C)
-        jolt = not back and self._steady(oid) and not within_motion_gate(  # a lock onto smeared or repeated texture
-            T_wo, T_pred, t - live.last_time, self.cfg.accel_sigma, self.cfg.angular_accel_sigma, MOTION_GATE_SIGMAS)
+        # A lock onto smeared or repeated texture; with a velocity read across a gap (unknown) the turn alone.
+        jolt = not back and steady and not within_motion_gate(T_wo, T_pred, t - live.last_time, self.cfg.accel_sigma if in_run
+                                                              else float("inf"), self.cfg.angular_accel_sigma, MOTION_GATE_SIGMAS)
         if not self._good(res) or jolt:
             if back and len(self.pending.get(oid, [])) < self.cfg.border_wait:  # no anchor from one poor view: try the next
                 self.pending.setdefault(oid, []).append(_Pending(pyramid, mask, T_wc, tau, t, pixels))
@@ -345,7 +345,7 @@ class ObjectTracker:
         recent = live is not None and t - live.last_time <= self.cfg.max_gap_s
         # Just seen: carried on at the track's last velocity, across a gap if it had one (held still it
         # lags a moving object, and the prior then holds the lag); after a gap only a steady velocity.
-        T = track.pose_at(tau) if recent or self._steady(oid) else track.poses()[-1].clone()
+        T = track.pose_at(tau) if recent or self._steady(oid)[0] else track.poses()[-1].clone()
         if recent and (len(track) > 1 or mask is None):  # one pose: held still, a fast object leaves the basin
             return T
         if live is not None and len(live.points):
@@ -356,10 +356,10 @@ class ObjectTracker:
                 T = centred_on(T, ref, centre_now, T_wc[:3, :3], track.middle)
         return T
 
-    def _steady(self, oid: int) -> bool:
-        """Whether the track has a velocity: its last two observations are at most ``max_gap_s`` apart."""
+    def _steady(self, oid: int) -> tuple[bool, bool]:
+        """Whether the track has a velocity, and whether it is read within its last run (:func:`run_velocity`)."""
         taus = self.tracks[oid].observed_taus()
-        return len(taus) >= 2 and self.stamps[oid][taus[-1]] - self.stamps[oid][taus[-2]] <= self.cfg.max_gap_s
+        return run_velocity([self.stamps[oid][tau] for tau in taus], taus, self.cfg.max_gap_s)
 
     # ---- identities from geometric segments ---------------------------------------------------
     def _associate(self, segments: list[torch.Tensor], frame: Frame, T_wc: torch.Tensor, tau: float) -> dict[tuple[int, bool], torch.Tensor]:

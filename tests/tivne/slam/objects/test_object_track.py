@@ -10,6 +10,7 @@ import torch
 from tivne.geometry import invert_pose, se3_exp
 from tivne.slam.objects import ObjectTrack
 from tivne.slam.objects.motion import camera_in_object, interpolate_se3, object_pose, odometry_init, within_motion_gate
+from tivne.slam.objects.track import run_velocity
 
 
 def _pose(*xi) -> torch.Tensor:
@@ -129,3 +130,19 @@ def test_the_motion_gate_scales_with_the_priors_sigma_over_the_time_step():
     turned[:2, :2] = torch.tensor([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]], dtype=torch.float64)
     assert not within_motion_gate(turned, pred, 1 / 30, 4.0, 30.0, 10.0)
     assert within_motion_gate(turned, pred, 1 / 30, 0.0, 30.0, 10.0)  # no prior, no gate
+
+
+def test_a_velocity_is_read_within_the_last_run_of_views_or_across_a_gap():
+    frame = 1 / 30
+    run = [i * frame for i in range(5)]
+    assert run_velocity(run[:1], run[:1], 0.2) == (False, False)  # one view: no velocity
+    assert run_velocity(run[:2], run[:2], 0.2) == (True, True)  # a new track's views, no gap: read between them
+    gap = run + [2.0 + i * frame for i in range(5)]  # a 1.87 s gap, then views again
+    assert run_velocity(gap[:6], gap[:6], 0.2) == (False, False)  # one view after it: none
+    assert run_velocity(gap[:8], gap[:8], 0.2) == (True, False)  # two frames after it: read across the gap
+    assert run_velocity(gap[:9], gap[:9], 0.2) == (True, False)  # 0.1 s after it: pose_at's partner may still lie before it
+    assert run_velocity(gap, gap, 0.2) == (True, True)  # 0.133 s: read within the run
+    assert run_velocity(gap[:7], gap[:7], 2.0) == (True, True)  # a gap under max_gap is no gap
+    # the run's span is read in field time, as pose_at reads it
+    assert run_velocity(gap[:8], [2 * t for t in gap[:8]], 0.2) == (True, True)
+    assert run_velocity(gap[:8], [t / 2 for t in gap[:8]], 0.2) == (True, False)
