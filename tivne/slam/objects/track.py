@@ -9,6 +9,7 @@ the run's :class:`tivne.field.clock.Clock` (seconds since the first frame times 
 from __future__ import annotations
 
 import bisect
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -28,18 +29,20 @@ def _pose64(pose: torch.Tensor | np.ndarray) -> torch.Tensor:
     return T
 
 
-def run_velocity(stamps: list[float], taus: list[float], max_gap: float) -> tuple[bool, bool]:
-    """Of a track observed at the increasing ``stamps`` (seconds; field times ``taus``): whether it has
-    an end velocity (its last two views at most ``max_gap`` apart), and whether
+def run_velocity(taus: list[float], seconds: Mapping[float, float], max_gap: float) -> tuple[bool, bool]:
+    """Of a track observed at the increasing field times ``taus`` (``seconds``: τ -> its frame's time):
+    whether it has an end velocity (its last two views at most ``max_gap`` seconds apart), and whether
     :meth:`ObjectTrack.pose_at` reads that velocity within its last run of views (none more than
     ``max_gap`` after the one before): the run is the whole track or spans more than
     VELOCITY_BASELINE_S. A shorter run after a gap has it read across the gap, an average over it,
-    wrong for an object that turned back unseen."""
-    first = len(stamps) - 1
-    while first > 0 and stamps[first] - stamps[first - 1] <= max_gap:
-        first -= 1
-    steady = first < len(stamps) - 1
-    return steady, steady and (first == 0 or taus[-1] - taus[first] > VELOCITY_BASELINE_S + TIME_TOLERANCE_S)
+    wrong for an object that turned back unseen. Walks back only that far (a few views)."""
+    k = len(taus) - 1
+    while k > 0 and seconds[taus[k]] - seconds[taus[k - 1]] <= max_gap:
+        k -= 1
+        if taus[-1] - taus[k] > VELOCITY_BASELINE_S + TIME_TOLERANCE_S:
+            return True, True
+    steady = k < len(taus) - 1
+    return steady, steady and k == 0
 
 
 class ObjectTrack:

@@ -230,7 +230,7 @@ class ObjectTracker:
             C_pred = camera_in_object(T_pred, T_wc)
             ref = pick_reference(live.references, C_pred, REUSE_ANGLE_DEG)
             init = odometry_init(T_pred, T_wc, ref.C)
-            prior = self._prior(init, ref.C, t - live.last_time) if steady else None  # none after a gap until it moves again
+            prior = self._prior(init, ref.C, t - live.last_time) if steady else None  # one view since a gap: no velocity
             also = tuple((o.pyramid, invert_pose(o.C) @ ref.C) for o in companions(live.references, ref, C_pred, 2 * REUSE_ANGLE_DEG, JOINT_VIEWS - 1))
             res = track_pyramids(ref.pyramid, pyramid, init, self.odo, prior=prior, also=also)
         T_wo = object_pose(T_wc, res.T_ref_cur, ref.C)
@@ -358,8 +358,7 @@ class ObjectTracker:
 
     def _steady(self, oid: int) -> tuple[bool, bool]:
         """Whether the track has a velocity, and whether it is read within its last run (:func:`run_velocity`)."""
-        taus = self.tracks[oid].observed_taus()
-        return run_velocity([self.stamps[oid][tau] for tau in taus], taus, self.cfg.max_gap_s)
+        return run_velocity(self.tracks[oid].observed_taus(), self.stamps[oid], self.cfg.max_gap_s)
 
     # ---- identities from geometric segments ---------------------------------------------------
     def _associate(self, segments: list[torch.Tensor], frame: Frame, T_wc: torch.Tensor, tau: float) -> dict[tuple[int, bool], torch.Tensor]:

@@ -135,14 +135,15 @@ def test_the_motion_gate_scales_with_the_priors_sigma_over_the_time_step():
 def test_a_velocity_is_read_within_the_last_run_of_views_or_across_a_gap():
     frame = 1 / 30
     run = [i * frame for i in range(5)]
-    assert run_velocity(run[:1], run[:1], 0.2) == (False, False)  # one view: no velocity
-    assert run_velocity(run[:2], run[:2], 0.2) == (True, True)  # a new track's views, no gap: read between them
     gap = run + [2.0 + i * frame for i in range(5)]  # a 1.87 s gap, then views again
-    assert run_velocity(gap[:6], gap[:6], 0.2) == (False, False)  # one view after it: none
-    assert run_velocity(gap[:8], gap[:8], 0.2) == (True, False)  # two frames after it: read across the gap
-    assert run_velocity(gap[:9], gap[:9], 0.2) == (True, False)  # 0.1 s after it: pose_at's partner may still lie before it
-    assert run_velocity(gap, gap, 0.2) == (True, True)  # 0.133 s: read within the run
-    assert run_velocity(gap[:7], gap[:7], 2.0) == (True, True)  # a gap under max_gap is no gap
+    seconds = {t: t for t in gap}
+    assert run_velocity(run[:1], seconds, 0.2) == (False, False)  # one view: no velocity
+    assert run_velocity(run[:2], seconds, 0.2) == (True, True)  # a new track's views, no gap: read between them
+    assert run_velocity(gap[:6], seconds, 0.2) == (False, False)  # one view after it: none
+    assert run_velocity(gap[:8], seconds, 0.2) == (True, False)  # two frames after it: read across the gap
+    assert run_velocity(gap[:9], seconds, 0.2) == (True, False)  # 0.1 s after it: pose_at's partner may still lie before it
+    assert run_velocity(gap, seconds, 0.2) == (True, True)  # 0.133 s: read within the run
+    assert run_velocity(gap[:7], seconds, 2.0) == (True, True)  # a gap under max_gap is no gap
     # the run's span is read in field time, as pose_at reads it
-    assert run_velocity(gap[:8], [2 * t for t in gap[:8]], 0.2) == (True, True)
-    assert run_velocity(gap[:8], [t / 2 for t in gap[:8]], 0.2) == (True, False)
+    assert run_velocity([2 * t for t in gap[:8]], {2 * t: t for t in gap}, 0.2) == (True, True)
+    assert run_velocity([t / 2 for t in gap[:8]], {t / 2: t for t in gap}, 0.2) == (True, False)
