@@ -127,10 +127,14 @@ def run_one(scene: str, source: str, noise: int, ns: argparse.Namespace) -> dict
     return json.loads(lines[-1][len("FIGURES "):])
 
 
+def object_names(r: dict) -> set[str]:
+    """The GT object names of one run's figures (``object_<name>_rot_deg`` keys)."""
+    return {k[len("object_"): -len("_rot_deg")] for k in r if k.startswith("object_") and k.endswith("_rot_deg")}
+
+
 def objects_cell(r: dict) -> str:
-    names = sorted(k[len("object_"): -len("_rot_deg")] for k in r if k.startswith("object_") and k.endswith("_rot_deg"))
     cells = []
-    for n in names:
+    for n in sorted(object_names(r)):
         ate, rot = r.get(f"object_{n}_ate_m"), r.get(f"object_{n}_rot_deg")
         cells.append(f"{n} –" if ate is None else f"{n} {100 * ate:.2f}/{rot:.2f} ({r.get(f'object_{n}_poses')})")
     return "; ".join(cells) or "–"
@@ -157,11 +161,12 @@ def spread(results: dict[tuple[str, str, int], dict | None]) -> str:
     lines = ["| preset | masks | object | draws | ATE cm median / worst | rot deg median / worst |", "|---|---|---|---|---|---|"]
     for scene, source in dict.fromkeys((a, b) for a, b, _ in results):
         runs = [r for (a, b, _), r in results.items() if (a, b) == (scene, source) and r is not None]
-        for name in sorted({k[7:-8] for r in runs for k in r if k.startswith("object_") and k.endswith("_rot_deg")}):
+        for name in sorted(set().union(*map(object_names, runs))):
             ate = [math.inf if r.get(f"object_{name}_ate_m") is None else 100 * r[f"object_{name}_ate_m"] for r in runs]
             rot = [math.inf if r.get(f"object_{name}_rot_deg") is None else r[f"object_{name}_rot_deg"] for r in runs]
-            lines.append(f"| {scene} | {source} | {name} | {len(runs)} | {statistics.median(ate):.2f} / {max(ate):.2f} | "
-                         f"{statistics.median(rot):.2f} / {max(rot):.2f} |")
+            cm = lambda v: f"{v:.2f}" if math.isfinite(v) else "unmatched"  # noqa: E731
+            lines.append(f"| {scene} | {source} | {name} | {len(runs)} | {cm(statistics.median(ate))} / {cm(max(ate))} | "
+                         f"{cm(statistics.median(rot))} / {cm(max(rot))} |")
     return "\n".join(lines)
 
 

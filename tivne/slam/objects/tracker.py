@@ -218,11 +218,11 @@ class ObjectTracker:
                 self._backfill(oid, self.pending.pop(oid, []), pixels, self.live[oid].reference)
                 return first
         track, live = self.tracks[oid], self.live.get(oid)
-        T_pred = self._predict(oid, inner, depth, T_wc, tau, t)
+        steady, in_run = self._steady(oid)
+        T_pred = self._predict(oid, inner, depth, T_wc, tau, t, steady)
         if live is None or live.reference is None:  # resumed: no reference pyramid kept
             self._new_reference(oid, inner, pyramid, depth, T_wc, T_pred, tau, t)
             return ObjectObservation(oid, tau, t, T_pred, pixels, False, reidentified=reid, new_reference=True)
-        steady, in_run = self._steady(oid)
         if back:  # it may have turned by anything meanwhile: several rotations, the best alignment
             ref, res = reacquire(live.references, track, pyramid, int(inner.sum()), T_pred, T_wc,
                                  world_points(inner, depth, self.K, T_wc).mean(0), self.odo, live.typical_rms())
@@ -234,9 +234,9 @@ class ObjectTracker:
             also = tuple((o.pyramid, invert_pose(o.C) @ ref.C) for o in companions(live.references, ref, C_pred, 2 * REUSE_ANGLE_DEG, JOINT_VIEWS - 1))
             res = track_pyramids(ref.pyramid, pyramid, init, self.odo, prior=prior, also=also)
         T_wo = object_pose(T_wc, res.T_ref_cur, ref.C)
-        # A lock onto smeared or repeated texture; with a velocity read across a gap (unknown) the turn alone.
-        jolt = not back and steady and not within_motion_gate(T_wo, T_pred, t - live.last_time, self.cfg.accel_sigma if in_run
-                                                              else float("inf"), self.cfg.angular_accel_sigma, MOTION_GATE_SIGMAS)
+        accel = self.cfg.accel_sigma if in_run else float("inf")  # a velocity read across a gap is unknown: the turn alone
+        jolt = not back and steady and not within_motion_gate(  # a lock onto smeared or repeated texture
+            T_wo, T_pred, t - live.last_time, accel, self.cfg.angular_accel_sigma, MOTION_GATE_SIGMAS)
         if not self._good(res) or jolt:
             if back and len(self.pending.get(oid, [])) < self.cfg.border_wait:  # no anchor from one poor view: try the next
                 self.pending.setdefault(oid, []).append(_Pending(pyramid, mask, T_wc, tau, t, pixels))
@@ -334,9 +334,10 @@ class ObjectTracker:
             refs = add_reference(refs, Reference(crop_pyramid(pyramid, mask), C, tau, int(mask.sum()), pts), MAX_REFERENCES)
         self.live[oid] = _Live(refs, pts, extent(pts), t, self.live[oid].rms if oid in self.live else [])
 
-    def _predict(self, oid: int, mask: torch.Tensor | None, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float) -> torch.Tensor:
+    def _predict(self, oid: int, mask: torch.Tensor | None, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float,
+                 steady: bool) -> torch.Tensor:
         """Constant velocity: the track carried on at its end's velocity (``pose_at``), when the object
-        was seen within ``max_gap_s`` or its last two observations were no more than that apart; else its
+        was seen within ``max_gap_s`` or it has a velocity (``steady``, :meth:`_steady`); else its
         last pose. After a gap, and on a new track's second view (no velocity yet), that pose is moved
         so the last observed points' centre lands on this observation's (``mask``; None: not moved),
         which only picks the predicted side; the stored view of that side that showed about as much as
@@ -345,7 +346,7 @@ class ObjectTracker:
         recent = live is not None and t - live.last_time <= self.cfg.max_gap_s
         # Just seen: carried on at the track's last velocity, across a gap if it had one (held still it
         # lags a moving object, and the prior then holds the lag); after a gap only a steady velocity.
-        T = track.pose_at(tau) if recent or self._steady(oid)[0] else track.poses()[-1].clone()
+        T = track.pose_at(tau) if recent or steady else track.poses()[-1].clone()
         if recent and (len(track) > 1 or mask is None):  # one pose: held still, a fast object leaves the basin
             return T
         if live is not None and len(live.points):
@@ -369,7 +370,7 @@ class ObjectTracker:
         followed = [k for k, lv in self.live.items() if t - lv.last_time <= self.cfg.max_gap_s]
         scores = np.zeros((len(followed), len(segments)))
         for i, k in enumerate(followed):
-            T_pred = self._predict(k, None, depth, T_wc, tau, t)
+            T_pred = self._predict(k, None, depth, T_wc, tau, t, self._steady(k)[0])
             footprint = projected_mask(transform_points(T_pred, self.live[k].points), T_wc, self.K, shape)
             scores[i] = [iou(footprint, s) for s in segments]
         out, taken = {}, set()
