@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import bisect
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +41,7 @@ from tivne.slam.objects.instances import (
     touches_border,
     world_points,
 )
+from tivne.slam.objects.live import LiveObject, PendingView
 from tivne.slam.objects.motion import camera_in_object, centred_information, object_pose, odometry_init, within_motion_gate
 from tivne.slam.objects.reacquire import reacquire
 from tivne.slam.objects.references import (
@@ -56,7 +57,7 @@ from tivne.slam.objects.references import (
 from tivne.slam.objects.track import ObjectTrack, run_velocity
 from tivne.slam.outputs import RunDir
 from tivne.slam.tracking.odometry import OdometryResult, PosePrior, frame_pyramid, track_pyramids
-from tivne.slam.tracking.pyramid import PyramidLevel, crop_pyramid
+from tivne.slam.tracking.pyramid import crop_pyramid
 
 # A track is written once it has this many observed poses (one-frame segments are clutter).
 MIN_WRITTEN_POSES = 3
@@ -94,38 +95,6 @@ class ObjectObservation:
     inlier_ratio: float = float("nan")
 
 
-@dataclass
-class _Pending:
-    """A new object's observation while the image border cuts it off (before its track starts)."""
-
-    pyramid: list[PyramidLevel]
-    mask: torch.Tensor
-    T_wc: torch.Tensor
-    tau: float
-    time: float
-    pixels: int
-
-
-@dataclass
-class _Live:
-    """Per-object tracking state: its keyframe observations (oldest first, at most
-    ``MAX_REFERENCES``), the last observation's object-frame points (M, 3), their size (m) and time (s)."""
-
-    references: list[Reference]
-    points: torch.Tensor
-    size: float
-    last_time: float
-    rms: list[float] = field(default_factory=list)  # photometric RMS of its last alignments
-
-    @property
-    def reference(self) -> Reference | None:
-        return self.references[-1] if self.references else None
-
-    def typical_rms(self) -> float:
-        """The median photometric RMS of the object's recent alignments (nan before any)."""
-        return float(np.median(self.rms)) if self.rms else float("nan")
-
-
 class ObjectTracker:
     """Tracks every moving object of a stream (see the module docstring).
 
@@ -148,8 +117,8 @@ class ObjectTracker:
         self.names = dict(names or {})
         self.tracks: dict[int, ObjectTrack] = {}
         self.stamps: dict[int, dict[float, float]] = {}  # per track: τ -> timestamp [s]
-        self.live: dict[int, _Live] = {}
-        self.pending: dict[int, list[_Pending]] = {}  # new objects cut off by the border, oldest first
+        self.live: dict[int, LiveObject] = {}
+        self.pending: dict[int, list[PendingView]] = {}  # new objects cut off by the border, oldest first
         self.next_id = 1
         self.seconds, self.frames = 0.0, 0
 
@@ -211,7 +180,7 @@ class ObjectTracker:
             hidden = back and live is not None and live.reference is not None and not shows_enough(
                 int(inner.sum()), float(depth[inner & (depth > 0)].median()), live.reference)
             if (touches_border(mask) or hidden) and len(waiting) < self.cfg.border_wait:
-                waiting.append(_Pending(pyramid, mask, T_wc, tau, t, pixels))
+                waiting.append(PendingView(pyramid, mask, T_wc, tau, t, pixels))
                 return None
             if not back:
                 first = self._start(oid, inner, pyramid, depth, T_wc, tau, t, pixels)
@@ -239,7 +208,7 @@ class ObjectTracker:
             T_wo, T_pred, t - live.last_time, accel, self.cfg.angular_accel_sigma, MOTION_GATE_SIGMAS)
         if not self._good(res) or jolt:
             if back and len(self.pending.get(oid, [])) < self.cfg.border_wait:  # no anchor from one poor view: try the next
-                self.pending.setdefault(oid, []).append(_Pending(pyramid, mask, T_wc, tau, t, pixels))
+                self.pending.setdefault(oid, []).append(PendingView(pyramid, mask, T_wc, tau, t, pixels))
                 return None
             if back:  # no rotation aligns a whole view: restart from the prediction (its own motion stays right)
                 self.pending.pop(oid, None)
@@ -288,7 +257,7 @@ class ObjectTracker:
         self._remember(oid, mask, depth, T_wc, T_wo, t, pyramid, tau)
         return ObjectObservation(oid, tau, t, T_wo, pixels, True, new_track=True, new_reference=True)
 
-    def _backfill(self, oid: int, waiting: list[_Pending], pixels: int, ref: Reference) -> None:
+    def _backfill(self, oid: int, waiting: list[PendingView], pixels: int, ref: Reference) -> None:
         """The poses of the observations that waited for a whole view (``pixels`` pixels, aligned to
         ``ref``), newest first, each aligned to ``ref`` starting from the track carried back to it.
         Back to the first one that fails or shows less than half as many pixels: a sliver leaves the
@@ -332,7 +301,7 @@ class ObjectTracker:
         refs = list(self.live[oid].references) if oid in self.live else []
         if pyramid is not None:
             refs = add_reference(refs, Reference(crop_pyramid(pyramid, mask), C, tau, int(mask.sum()), pts), MAX_REFERENCES)
-        self.live[oid] = _Live(refs, pts, extent(pts), t, self.live[oid].rms if oid in self.live else [])
+        self.live[oid] = LiveObject(refs, pts, extent(pts), t, self.live[oid].rms if oid in self.live else [])
 
     def _predict(self, oid: int, mask: torch.Tensor | None, depth: torch.Tensor, T_wc: torch.Tensor, tau: float, t: float,
                  steady: bool) -> torch.Tensor:
@@ -446,5 +415,5 @@ class ObjectTracker:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.tracks = {int(k): ObjectTrack.from_state_dict(s) for k, s in state["tracks"].items()}
         self.stamps = {int(k): {float(a): float(b) for a, b in v.items()} for k, v in state["stamps"].items()}
-        self.live = {int(k): _Live([], v["points"], float(v["size"]), float(v["last_time"])) for k, v in state["live"].items()}
+        self.live = {int(k): LiveObject([], v["points"], float(v["size"]), float(v["last_time"])) for k, v in state["live"].items()}
         self.next_id = int(state["next_id"])
