@@ -11,6 +11,8 @@ what the pixels leave open (a symmetric object's spin, a blurred view); a pose m
 best of several rotation hypotheses (:mod:`tivne.slam.objects.reacquire`). Objects cut off by the border, or
 back while partly hidden, wait for a whole view; a reference is renewed when its overlap or inlier ratio
 falls, never from a view showing less than half of what it did (:mod:`tivne.slam.objects.references`).
+An object aligned again to a view far back up that chain of views closes a loop: once its next view
+confirms the chain's drift, the drift is spread over the chain's views and poses (:mod:`tivne.slam.objects.loops`).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from tivne.slam.objects.instances import (
     world_points,
 )
 from tivne.slam.objects.live import LiveObject, PendingView
+from tivne.slam.objects.loops import ChainLoops
 from tivne.slam.objects.motion import camera_in_object, centred_information, object_pose, odometry_init, within_motion_gate
 from tivne.slam.objects.reacquire import reacquire
 from tivne.slam.objects.references import (
@@ -119,6 +122,8 @@ class ObjectTracker:
         self.stamps: dict[int, dict[float, float]] = {}  # per track: τ -> timestamp [s]
         self.live: dict[int, LiveObject] = {}
         self.pending: dict[int, list[PendingView]] = {}  # new objects cut off by the border, oldest first
+        self.reached: dict[int, Reference] = {}  # per object: the stored view its last pose was measured against
+        self.loops = ChainLoops()
         self.next_id = 1
         self.seconds, self.frames = 0.0, 0
 
@@ -141,8 +146,9 @@ class ObjectTracker:
         return out
 
     def metrics(self) -> dict[str, Any]:
-        """metrics.json keys of the tracking itself: tracks written, the objects' s/frame."""
-        return {"objects_written": len(self.written_tracks()), "objects_s_per_frame": self.seconds / self.frames if self.frames else None}
+        """metrics.json keys of the tracking itself: tracks written, the objects' s/frame, loop closures."""
+        return {"objects_written": len(self.written_tracks()),
+                "objects_s_per_frame": self.seconds / self.frames if self.frames else None} | self.loops.metrics()
 
     def step(self, frame: Frame, camera_pose: torch.Tensor, tau: float, instances: torch.Tensor | None) -> list[ObjectObservation]:
         """Observe the objects of one frame whose camera-to-world pose ``camera_pose`` (4, 4) is known.
@@ -198,6 +204,11 @@ class ObjectTracker:
         else:
             C_pred = camera_in_object(T_pred, T_wc)
             ref = pick_reference(live.references, C_pred, REUSE_ANGLE_DEG)
+            if self.loops.step(oid, live.references, track, ref, self.reached.get(oid), pyramid, T_pred, T_wc, tau, self.odo,
+                               self._good, live.typical_rms()):  # a loop up the chain closed: its past poses moved
+                T_pred = self._predict(oid, inner, depth, T_wc, tau, t, steady)
+                C_pred = camera_in_object(T_pred, T_wc)
+                ref = pick_reference(live.references, C_pred, REUSE_ANGLE_DEG)
             init = odometry_init(T_pred, T_wc, ref.C)
             prior = self._prior(init, ref.C, t - live.last_time) if steady else None  # one view since a gap: no velocity
             also = tuple((o.pyramid, invert_pose(o.C) @ ref.C) for o in companions(live.references, ref, C_pred, 2 * REUSE_ANGLE_DEG, JOINT_VIEWS - 1))
@@ -217,6 +228,7 @@ class ObjectTracker:
                                      overlap=res.overlap, inlier_ratio=res.inlier_ratio)
         track.add(tau, T_wo)
         self.stamps[oid][tau] = t
+        self.reached[oid] = ref
         if back:
             self._backfill(oid, self.pending.pop(oid, []), pixels, ref)
         # A view that shows less than half of what its reference did at the same distance (cut by the
@@ -399,7 +411,7 @@ class ObjectTracker:
         """What :meth:`state_dict` saves, as it is now, copied cheaply (no tensor is copied: the
         tracker replaces, never changes, the poses and points it saves)."""
         return {"tracks": {k: tr.copy() for k, tr in self.tracks.items()}, "stamps": {k: dict(v) for k, v in self.stamps.items()},
-                "live": dict(self.live), "next_id": self.next_id}
+                "live": dict(self.live), "next_id": self.next_id, "loops": self.loops.metrics()}
 
     def state_dict(self, snapshot: dict[str, Any] | None = None) -> dict[str, Any]:
         """The tracks and identities, now or as a :meth:`snapshot` held them (not the reference
@@ -410,6 +422,7 @@ class ObjectTracker:
             "stamps": s["stamps"],
             "live": {k: {"points": lv.points, "size": lv.size, "last_time": lv.last_time} for k, lv in s["live"].items()},
             "next_id": s["next_id"],
+            "loops": s["loops"],
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -417,3 +430,4 @@ class ObjectTracker:
         self.stamps = {int(k): {float(a): float(b) for a, b in v.items()} for k, v in state["stamps"].items()}
         self.live = {int(k): LiveObject([], v["points"], float(v["size"]), float(v["last_time"])) for k, v in state["live"].items()}
         self.next_id = int(state["next_id"])
+        self.loops.restore(state.get("loops", {}))  # a checkpoint from before loop closures has none
