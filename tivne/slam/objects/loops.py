@@ -22,6 +22,7 @@ frame to frame, drift does not). The tracker's counters (metrics.json): ``object
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -59,10 +60,11 @@ def closes_loop(references: list[Reference], old: Reference, reached: Reference 
 
 
 def chain_drift(old: Reference, reached: Reference, pyramid: list[PyramidLevel], T_pred: torch.Tensor, T_wc: torch.Tensor,
-                odometry: OdometryConfig, good, typical_rms: float = math.nan) -> torch.Tensor | None:
+                odometry: OdometryConfig, good: Callable[[OdometryResult], bool], typical_rms: float = math.nan) -> torch.Tensor | None:
     """L (4, 4) float64, the object-frame correction that takes the chain's camera-to-object pose of
     the current view (aligned to ``reached``) onto the old view's (aligned to ``old``); None when
-    either alignment fails ``good`` or they disagree by more than a chain drifts.
+    either alignment fails ``good``, fits worse than ``LOOP_FIT_RATIO`` × the usual (``typical_rms``,
+    the object's median photometric RMS, and the chain's own fit), or they disagree by more than a chain drifts.
 
     Args:
         pyramid: the current view's object pyramid. T_pred: (4, 4) predicted object-to-world pose
@@ -131,7 +133,7 @@ class ChainLoops:
 
     def step(self, oid: int, references: list[Reference], track: ObjectTrack, picked: Reference, reached: Reference | None,
              pyramid: list[PyramidLevel], T_pred: torch.Tensor, T_wc: torch.Tensor, tau: float, odometry: OdometryConfig,
-             good, typical_rms: float) -> bool:
+             good: Callable[[OdometryResult], bool], typical_rms: float) -> bool:
         """Check object ``oid``'s view at field time ``tau`` (its pyramid, prediction T_pred (4, 4), camera
         T_wc (4, 4)) aligned to ``picked`` after its last pose was measured against ``reached``; True when
         a loop was closed, and ``references`` and ``track`` corrected (:func:`spread_drift`)."""
