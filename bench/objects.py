@@ -17,7 +17,7 @@ printed, never asserted.
 ``--gt-cameras``: the object tracker alone (``tivne.slam.objects.ObjectTracker``) on the GT camera
 poses and the dataset's instance masks, no field and no camera tracking: seconds per sequence, the
 object tracking's own error. ``--noise-seeds``: sensor-noise draws (``dataset.seed``) of the one
-layout (``dataset.scene_seed`` = 1); one row per draw, then the median and the worst over the draws
+layout (``--scene-seed``, ``dataset.scene_seed``, 1 by default); one row per draw, then the median and the worst over the draws
 per object. One draw of a blurred, symmetric object is a lottery ticket (fast_turn's passing
 cylinder, tracker alone, 5 draws: 0.26-10.0 cm, 6-54°), so compare such figures over draws.
 """
@@ -42,8 +42,9 @@ RIGID = ("cube", "big_fast", "orbit_ball", "crossing", "three_objects", "fast_tu
 SCENE_SEED = 1  # as bench/suite.py: one fixed draw of each preset's layout
 
 
-def overrides(scene: str, source: str, frames: int, size: tuple[int, int], threads: int, noise: int = SCENE_SEED) -> list[str]:
-    return ["dataset=synthetic", f"dataset.scene={scene}", f"dataset.seed={noise}", f"dataset.scene_seed={SCENE_SEED}",
+def overrides(scene: str, source: str, frames: int, size: tuple[int, int], threads: int, noise: int = SCENE_SEED,
+              layout: int = SCENE_SEED) -> list[str]:
+    return ["dataset=synthetic", f"dataset.scene={scene}", f"dataset.seed={noise}", f"dataset.scene_seed={layout}",
             f"dataset.num_frames={frames}",
             f"dataset.width={size[0]}", f"dataset.height={size[1]}", "objects.track=true", f"objects.source={source}",
             f"masks={source}", "output.evaluate=false", "mapping.final_iters=0", "mesh.resolution=0.1",
@@ -113,7 +114,7 @@ def tracker_alone(run_dir: str, args: list[str]) -> None:
 
 def run_one(scene: str, source: str, noise: int, ns: argparse.Namespace) -> dict | None:
     run_dir = tempfile.mkdtemp(prefix=f"tivne-objects-{scene}-{source}-")
-    args = overrides(scene, source, ns.frames, (ns.width, ns.height), ns.threads, noise)
+    args = overrides(scene, source, ns.frames, (ns.width, ns.height), ns.threads, noise, ns.scene_seed)
     mode = "--alone" if ns.gt_cameras else "--child"
     proc = subprocess.run([sys.executable, __file__, mode, run_dir, *args], capture_output=True, text=True,
                           env=dict(os.environ, OMP_WAIT_POLICY="PASSIVE"))
@@ -181,6 +182,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2, help="torch threads per run")
     parser.add_argument("--json", default=None)
     parser.add_argument("--noise-seeds", default=str(SCENE_SEED), help="comma-separated sensor-noise draws (dataset.seed)")
+    parser.add_argument("--scene-seed", type=int, default=SCENE_SEED, help="the presets' layout draw (dataset.scene_seed)")
     parser.add_argument("--gt-cameras", action="store_true", help="the object tracker alone on GT cameras (dataset masks)")
     parser.add_argument("--child", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
     parser.add_argument("--alone", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
@@ -193,7 +195,8 @@ def main() -> None:
         found = list(pool.map(lambda key: run_one(*key, ns), todo))
     results = dict(zip(todo, found))
     mode = " --gt-cameras" if ns.gt_cameras else ""
-    print(f"\nbench/objects.py{mode} --frames {ns.frames} --width {ns.width} --height {ns.height} --noise-seeds {ns.noise_seeds}")
+    print(f"\nbench/objects.py{mode} --frames {ns.frames} --width {ns.width} --height {ns.height} --noise-seeds {ns.noise_seeds} "
+          f"--scene-seed {ns.scene_seed}")
     print(table(results))
     if len(ns.noise_seeds.split(",")) > 1:
         print("\n" + spread(results))
