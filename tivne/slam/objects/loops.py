@@ -59,21 +59,20 @@ def closes_loop(references: list[Reference], old: Reference, reached: Reference 
     return 1 + sum(old.tau < r.tau < reached.tau for r in references) >= LOOP_MIN_VIEWS
 
 
-def chain_drift(old: Reference, reached: Reference, pyramid: list[PyramidLevel], T_pred: torch.Tensor, T_wc: torch.Tensor,
-                odometry: OdometryConfig, good: Callable[[OdometryResult], bool], typical_rms: float = math.nan) -> torch.Tensor | None:
+def chain_drift(old: Reference, reached: Reference, align: Callable[[Reference], OdometryResult],
+                good: Callable[[OdometryResult], bool], typical_rms: float = math.nan) -> torch.Tensor | None:
     """L (4, 4) float64, the object-frame correction that takes the chain's camera-to-object pose of
     the current view (aligned to ``reached``) onto the old view's (aligned to ``old``); None when
     either alignment fails ``good``, fits worse than ``LOOP_FIT_RATIO`` × the usual (``typical_rms``,
     the object's median photometric RMS, and the chain's own fit), or they disagree by more than a chain drifts.
 
     Args:
-        pyramid: the current view's object pyramid. T_pred: (4, 4) predicted object-to-world pose
-            (both alignments start there). T_wc: (4, 4) current camera-to-world.
-        good: OdometryResult -> bool, the tracker's test of a usable alignment.
+        align: the current view aligned to a stored view, alone and without the motion prior
+            (:func:`view_aligner`). good: the tracker's test of a usable alignment.
     """
     fits: list[OdometryResult] = []
     for ref in (old, reached):
-        fits.append(track_pyramids(ref.pyramid, pyramid, odometry_init(T_pred, T_wc, ref.C), odometry))
+        fits.append(align(ref))
         if not good(fits[-1]):
             return None
     usual = fits[1].rms_photometric if not math.isfinite(typical_rms) else min(fits[1].rms_photometric, typical_rms)
@@ -83,6 +82,13 @@ def chain_drift(old: Reference, reached: Reference, pyramid: list[PyramidLevel],
     L = C[0] @ invert_pose(C[1])
     shift, degrees = pose_difference(torch.eye(4, dtype=torch.float64), L)
     return L if degrees <= LOOP_MAX_DEG and shift <= LOOP_MAX_SHIFT_M else None
+
+
+def view_aligner(pyramid: list[PyramidLevel], T_pred: torch.Tensor, T_wc: torch.Tensor,
+                 odometry: OdometryConfig) -> Callable[[Reference], OdometryResult]:
+    """The current view (its object pyramid, predicted object-to-world pose T_pred (4, 4), camera-to-world
+    T_wc (4, 4)) aligned to a stored view alone, from the prediction, without the motion prior."""
+    return lambda ref: track_pyramids(ref.pyramid, pyramid, odometry_init(T_pred, T_wc, ref.C), odometry)
 
 
 def chain_share(tau: float, start: float, end: float) -> float:
@@ -132,15 +138,15 @@ class ChainLoops:
         self.closed, self.refused, self.largest_deg = 0, 0, 0.0
 
     def step(self, oid: int, references: list[Reference], track: ObjectTrack, picked: Reference, reached: Reference | None,
-             pyramid: list[PyramidLevel], T_pred: torch.Tensor, T_wc: torch.Tensor, tau: float, odometry: OdometryConfig,
-             good: Callable[[OdometryResult], bool], typical_rms: float) -> bool:
-        """Check object ``oid``'s view at field time ``tau`` (its pyramid, prediction T_pred (4, 4), camera
-        T_wc (4, 4)) aligned to ``picked`` after its last pose was measured against ``reached``; True when
-        a loop was closed, and ``references`` and ``track`` corrected (:func:`spread_drift`)."""
+             tau: float, align: Callable[[Reference], OdometryResult], good: Callable[[OdometryResult], bool],
+             typical_rms: float) -> bool:
+        """Check object ``oid``'s view at field time ``tau`` (``align``: it aligned to a stored view,
+        :func:`view_aligner`), to be aligned to ``picked`` after its last pose was measured against
+        ``reached``; True when a loop was closed, and ``references`` and ``track`` corrected (:func:`spread_drift`)."""
         seen = self.candidates.pop(oid, None)
         taus = track.observed_taus()
         if seen is not None and taus and taus[-1] == seen.tau:  # the view that saw it was taken: verify
-            L = chain_drift(seen.old, seen.reached, pyramid, T_pred, T_wc, odometry, good, typical_rms)
+            L = chain_drift(seen.old, seen.reached, align, good, typical_rms)
             shift, degrees = (math.inf, math.inf) if L is None else pose_difference(seen.L, L)
             if L is None or degrees > LOOP_AGREE_DEG or shift > LOOP_AGREE_M:
                 self.refused += 1
@@ -151,7 +157,7 @@ class ChainLoops:
             self.largest_deg = max(self.largest_deg, pose_difference(torch.eye(4, dtype=torch.float64), L)[1])
             return True
         if closes_loop(references, picked, reached):
-            L = chain_drift(picked, reached, pyramid, T_pred, T_wc, odometry, good, typical_rms)
+            L = chain_drift(picked, reached, align, good, typical_rms)
             if L is None:
                 self.refused += 1
             else:

@@ -44,7 +44,7 @@ from tivne.slam.objects.instances import (
     world_points,
 )
 from tivne.slam.objects.live import LiveObject, PendingView
-from tivne.slam.objects.loops import ChainLoops
+from tivne.slam.objects.loops import ChainLoops, view_aligner
 from tivne.slam.objects.motion import camera_in_object, centred_information, object_pose, odometry_init, within_motion_gate
 from tivne.slam.objects.reacquire import reacquire
 from tivne.slam.objects.references import (
@@ -204,7 +204,7 @@ class ObjectTracker:
         else:
             C_pred = camera_in_object(T_pred, T_wc)
             ref = pick_reference(live.references, C_pred, REUSE_ANGLE_DEG)
-            if self.loops.step(oid, live.references, track, ref, self.reached.get(oid), pyramid, T_pred, T_wc, tau, self.odo,
+            if self.loops.step(oid, live.references, track, ref, self.reached.get(oid), tau, view_aligner(pyramid, T_pred, T_wc, self.odo),
                                self._good, live.typical_rms()):  # a loop up the chain closed: its past poses moved
                 T_pred = self._predict(oid, inner, depth, T_wc, tau, t, steady)
                 C_pred = camera_in_object(T_pred, T_wc)

@@ -75,8 +75,7 @@ def _chain_with_loop(monkeypatch, drifts):
 
 
 def _step(loops, refs, track, picked, reached, tau):
-    eye = torch.eye(4, dtype=torch.float64)
-    return loops.step(1, refs, track, picked, reached, [], eye, eye, tau, None, None, float("nan"))
+    return loops.step(1, refs, track, picked, reached, tau, None, None, float("nan"))
 
 
 def test_a_loop_is_closed_only_when_the_next_view_repeats_its_drift(monkeypatch):
