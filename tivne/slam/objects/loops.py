@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import torch
 
 from tivne.config import OdometryConfig
-from tivne.geometry import invert_pose, pose_difference, transform_points
+from tivne.geometry import invert_pose, pose_difference, rotation_angle_deg, transform_points
 from tivne.slam.objects.motion import interpolate_se3, odometry_init
 from tivne.slam.objects.references import Reference
 from tivne.slam.objects.track import ObjectTrack
@@ -102,15 +102,16 @@ def spread_drift(L: torch.Tensor, references: list[Reference], track: ObjectTrac
     points) and each track pose at field time ``start`` < τ < ``until`` by L^w, w = :func:`chain_share`
     (from ``until`` on, the poses were measured against the old view already)."""
     eye = torch.eye(4, dtype=torch.float64)
+    share = lambda tau: chain_share(tau, start, end) if tau < until else 0.0  # noqa: E731
     for ref in references:
-        w = chain_share(ref.tau, start, end) if ref.tau < until else 0.0
+        w = share(ref.tau)
         if w > 0:
             Lw = interpolate_se3(eye, L, w)
             ref.C = Lw @ ref.C.double()
             if ref.points is not None and len(ref.points):
                 ref.points = transform_points(Lw.to(ref.points.dtype), ref.points)
     for tau, pose in zip(track.observed_taus(), track.poses()):
-        w = chain_share(tau, start, end) if tau < until else 0.0
+        w = share(tau)
         if w > 0:
             track.add(tau, pose @ invert_pose(interpolate_se3(eye, L, w)))
 
@@ -144,8 +145,7 @@ class ChainLoops:
         :func:`view_aligner`), to be aligned to ``picked`` after its last pose was measured against
         ``reached``; True when a loop was closed, and ``references`` and ``track`` corrected (:func:`spread_drift`)."""
         seen = self.candidates.pop(oid, None)
-        taus = track.observed_taus()
-        if seen is not None and taus and taus[-1] == seen.tau:  # the view that saw it was taken: verify
+        if seen is not None and track.observed_taus()[-1] == seen.tau:  # the view that saw it was taken: verify
             L = chain_drift(seen.old, seen.reached, align, good, typical_rms)
             shift, degrees = (math.inf, math.inf) if L is None else pose_difference(seen.L, L)
             if L is None or degrees > LOOP_AGREE_DEG or shift > LOOP_AGREE_M:
@@ -154,7 +154,7 @@ class ChainLoops:
             L = interpolate_se3(seen.L, L, 0.5)
             spread_drift(L, references, track, seen.old.tau, seen.reached.tau, until=seen.tau)
             self.closed += 1
-            self.largest_deg = max(self.largest_deg, pose_difference(torch.eye(4, dtype=torch.float64), L)[1])
+            self.largest_deg = max(self.largest_deg, rotation_angle_deg(L))
             return True
         if closes_loop(references, picked, reached):
             L = chain_drift(picked, reached, align, good, typical_rms)
