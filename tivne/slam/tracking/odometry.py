@@ -13,8 +13,8 @@ Kinect v1 axial noise model (it shapes the per-pixel weights) and s_G the MAD of
 weights (Huber or Cauchy) act on the normalised residuals; the 6x6 normal equations are summed in
 float64 and the update is applied on the left, T ← exp(δ) T, δ = (v, w) as :func:`tivne.geometry.se3_exp`.
 
-After Steinbrücker et al. (2011), Kerl et al. (DVO, 2013), ElasticFusion (2015), Open3D's hybrid odometry;
-σ(z) = 0.0012 + 0.0019 (z − 0.4)² m from Nguyen, Izadi, Lovell (3DIMPVT 2012).
+After Steinbrücker et al. (2011), Kerl et al. (DVO, 2013; rolling shutter: Kerl et al., ICCV 2015), ElasticFusion (2015),
+Open3D's hybrid odometry; σ(z) = 0.0012 + 0.0019 (z − 0.4)² m from Nguyen, Izadi, Lovell (3DIMPVT 2012).
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from tivne.config import OdometryConfig
 from tivne.geometry import adjoint_vw, eigen_range, invert_pose, pixel_coordinates, se3_step
 from tivne.slam.tracking.pyramid import PyramidLevel, build_pyramid, pick_pixels
 from tivne.slam.tracking.robust import cauchy_weights, huber_weights, normal_equations, robust_scale, solve_damped, subsample
+from tivne.slam.tracking.sensor import Shutter, parallax_pixels
 
 
 @dataclass(frozen=True)
@@ -123,7 +124,8 @@ def _in_image(u: torch.Tensor, v: torch.Tensor, z: torch.Tensor, shape: tuple[in
     return (z > min_depth) & (u >= 1) & (u <= w - 2) & (v >= 1) & (v <= h - 2)
 
 
-def _source(level: PyramidLevel, max_points: float, T_rgb_depth: torch.Tensor | None, cfg: OdometryConfig) -> _Source:
+def _source(level: PyramidLevel, max_points: float, T_rgb_depth: torch.Tensor | None, cfg: OdometryConfig,
+            shutter: Shutter | None) -> _Source:
     sel = level.usable
     stride = math.ceil(math.sqrt(int(sel.sum()) / max(max_points, 1.0))) if max_points > 0 else 1
     terms = (slice(None), slice(None))
@@ -144,6 +146,9 @@ def _source(level: PyramidLevel, max_points: float, T_rgb_depth: torch.Tensor | 
         points, normals = R @ points + t[:, None], R @ normals
         u, v, z = _project(points, level.K)
         intensity, has_colour = _sample(level.intensity[None, None], u, v)[0], _in_image(u, v, z, sel.shape, cfg.min_depth)
+    if shutter is not None:  # each row seen at its own time: the points where the middle row's camera has them
+        v = _project(points, level.K)[1]
+        points = points + shutter.motion(points, shutter.row_times(v, sel.shape[0]))
     return _Source(points, intensity, normals, has_colour, kinect_depth_sigma(points[2], cfg.depth_sigma), terms=terms)
 
 
@@ -221,16 +226,6 @@ def _photometric(
     return rows, wts / scale**2, wts, noise
 
 
-def parallax_pixels(z: torch.Tensor, focal: float, baseline: float) -> torch.Tensor:
-    """(N,) pixels by which colour remapped as if its camera shared the depth camera's centre is off at
-    depths z (N,) metres: f·b·|1/z − 1/z̃| for an unmodelled baseline b, z̃ the median depth (where a
-    colour camera fitted to the frames is exact, its principal point absorbing the mean parallax)."""
-    if z.numel() == 0:
-        return z
-    inverse = 1.0 / z.clamp_min(1e-3)
-    return focal * baseline * (inverse - inverse.median()).abs()
-
-
 def _geometric(
     n_cur: torch.Tensor, p: torch.Tensor, pd: torch.Tensor, geo: torch.Tensor, valid: torch.Tensor, sigma: torch.Tensor,
     RA: torch.Tensor | None, cfg: OdometryConfig, given: torch.Tensor | None = None,
@@ -256,7 +251,7 @@ def _geometric(
 
 def _linearise(
     ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig,
-    scales: tuple[torch.Tensor | None, torch.Tensor | None] = (None, None),
+    scales: tuple[torch.Tensor | None, torch.Tensor | None] = (None, None), shutter: Shutter | None = None,
 ) -> _Linearisation:
     """Warp the current points by T (4, 4) into the reference and build the robust normal equations.
 
@@ -267,6 +262,8 @@ def _linearise(
     """
     R, t = T[:3, :3].to(src.points.dtype), T[:3, 3].to(src.points.dtype)
     p = R @ src.points + t[:, None]
+    if shutter is not None:  # the reference's row that sees p was read while its camera moved: p as that camera has it
+        p = p - shutter.motion(p, shutter.row_times(_project(p, ref.K)[1], ref.intensity.shape[0]))
     u, v, z = _project(p, ref.K)
     RA, pd, ud, vd, zd = None, p, u, v, z
     h, w = ref.intensity.shape
@@ -300,14 +297,14 @@ def _linearise(
 
 
 def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tensor | None, cfg: OdometryConfig,
-                 prior: PosePrior | None = None, also: tuple[tuple[PyramidLevel, torch.Tensor], ...] = ()):
+                 prior: PosePrior | None, also: tuple[tuple[PyramidLevel, torch.Tensor], ...], shutters: tuple[Shutter | None, ...]):
     """Gauss–Newton iterations at one level -> (T, iterations, converged, last linearisation of ``ref``).
 
     ``also``: more reference levels with their (4, 4) T_other_ref, whose normal equations join
     ``ref``'s: T_other_cur = T_other_ref · T, so a step exp(δ) · T is exp(Ad δ) · T_other_cur there
     (Ad the adjoint of T_other_ref) and their H, g enter as Adᵀ H Ad, Adᵀ g. They are weighted with
     ``ref``'s robust scales: each view's own would make the joint pose follow whichever view fits it
-    best (its scale shrinks, its weight grows) instead of averaging them.
+    best (its scale shrinks, its weight grows) instead of averaging them. ``shutters``: ref's, then each view's.
     Converged: the update moves the image by < tol_pixels, or by < stall_pixels without shrinking to
     half the previous one (a limit cycle of the discrete projective association and the reweighting).
     """
@@ -315,13 +312,14 @@ def _track_level(ref: PyramidLevel, src: _Source, T: torch.Tensor, A: torch.Tens
     z_mid = float(src.points[2].median()) if src.points.shape[1] else 1.0
     last = math.inf
     adjoints = [adjoint_vw(T_other_ref.to(T)) for _, T_other_ref in also]
+    shutters = tuple(shutters) + (None,) * (1 + len(also) - len(shutters))  # a global shutter where none is given
     for it in range(cfg.max_iterations):
-        lin = _linearise(ref, src, T, A, cfg)
+        lin = _linearise(ref, src, T, A, cfg, shutter=shutters[0])
         if lin.num_valid < cfg.min_correspondences:
             return T, it, False, lin
         H, g = lin.H, lin.g
-        for (other, T_other_ref), Ad in zip(also, adjoints):
-            more = _linearise(other, src, T_other_ref.to(T) @ T, None, cfg, lin.scales)  # one noise scale for all views
+        for (other, T_other_ref), Ad, shutter in zip(also, adjoints, shutters[1:]):
+            more = _linearise(other, src, T_other_ref.to(T) @ T, None, cfg, lin.scales, shutter)  # one noise scale for all views
             if more.num_valid >= cfg.min_correspondences:
                 H, g = H + Ad.T @ more.H.to(H) @ Ad, g + Ad.T @ more.g.to(g)
         if prior is not None:  # ½ eᵀ Λ e with e ≈ e0 + δ
@@ -345,6 +343,7 @@ def track_pyramids(
     cur_rgb_depth: torch.Tensor | None = None,
     prior: PosePrior | None = None,
     also: tuple[tuple[list[PyramidLevel], torch.Tensor], ...] = (),
+    shutters: tuple[Shutter | None, ...] = (),
 ) -> OdometryResult:
     """Estimate T_ref_cur (``c2w_cur = c2w_ref @ T_ref_cur``, colour camera frames) coarse to fine.
 
@@ -357,6 +356,9 @@ def track_pyramids(
             whose depth and colour are not simultaneous (e.g. exp(ξ·Δt) from a velocity); None = simultaneous.
         prior: an optional :class:`PosePrior` on T_ref_cur, added to every level's normal equations
             (the result's ``information`` stays the pixels' own).
+        shutters: rolling shutters (:class:`Shutter`): the current frame's, then ``ref``'s, then one per
+            ``also`` view (None where a view's is unknown); () = global shutter. The current frame's
+            velocity follows the estimate at each level when it knows the previous frame (``previous``).
         also: more references of the same scene, each (pyramid, (4, 4) T_other_ref: ``ref``'s colour
             camera in its frame), aligned jointly with ``ref`` at the finest level (one pose, all their
             normal equations, ``ref``'s noise scales: their pixels average out each single view's
@@ -371,10 +373,12 @@ def track_pyramids(
     cur_rgb_depth = None if cur_rgb_depth is None else cur_rgb_depth.to(device, torch.float64)
     iterations, converged, lin, n_src = [], False, None, 0
     for level in reversed(range(min(len(ref), len(cur), config.levels))):
-        src = _source(cur[level], config.max_points / config.coarse_points_ratio**level, cur_rgb_depth, config)
+        shutter = shutters[0].at(T) if shutters else None  # the current frame's velocity as estimated so far
+        src = _source(cur[level], config.max_points / config.coarse_points_ratio**level, cur_rgb_depth, config, shutter)
         if config.colour_parallax_m:  # once per level: the points do not move between iterations
             src = replace(src, parallax=parallax_pixels(src.points[2], float(cur[level].K[0, 0]), config.colour_parallax_m))
-        T, its, converged, lin = _track_level(ref[level], src, T, A, config, prior, tuple((p[level], X) for p, X in also) if level == 0 else ())
+        views = tuple((p[level], X) for p, X in also) if level == 0 else ()
+        T, its, converged, lin = _track_level(ref[level], src, T, A, config, prior, views, shutters[1:])
         iterations.append(its)
         n_src = src.points.shape[1]
     return _result(T, converged, lin, n_src, tuple(iterations), config)
