@@ -20,7 +20,8 @@ class DatasetError(ValueError):
 
 @dataclass(frozen=True)
 class Intrinsics:
-    """Pinhole intrinsics in pixels for an image of ``width`` x ``height``."""
+    """Pinhole intrinsics in pixels for an image of ``width`` x ``height``; ``readout_s``: a rolling
+    shutter's readout, the seconds from the first row to the last (0 = a global shutter)."""
 
     fx: float
     fy: float
@@ -28,6 +29,7 @@ class Intrinsics:
     cy: float
     width: int
     height: int
+    readout_s: float = 0.0
 
     def __post_init__(self) -> None:
         """Refuse values no camera has; build through :func:`intrinsics_from` to name the source."""
@@ -39,6 +41,8 @@ class Intrinsics:
             raise DatasetError("intrinsics", f"focal lengths must be positive, got fx={self.fx} fy={self.fy}")
         if self.width <= 0 or self.height <= 0:
             raise DatasetError("intrinsics", f"image size must be positive, got {self.width}x{self.height}")
+        if not 0.0 <= self.readout_s < 1.0:  # not a frame rate's worth of seconds
+            raise DatasetError("intrinsics", f"readout_s must be in [0, 1) seconds, got {self.readout_s}")
         # Pixel centres are at integer coordinates, so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5].
         # A principal point outside it (e.g. 640x480 intrinsics on a smaller image) tracks nothing useful.
         if not (-0.5 <= self.cx <= self.width - 0.5 and -0.5 <= self.cy <= self.height - 0.5):
@@ -68,19 +72,23 @@ class Intrinsics:
             cy=(self.cy + 0.5) * sy - 0.5,
             width=width,
             height=height,
+            readout_s=self.readout_s,  # the same rows, read over the same time
         )
 
     def as_dict(self) -> dict[str, float | int]:
-        return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy, "width": self.width, "height": self.height}
+        return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy, "width": self.width, "height": self.height,
+                "readout_s": self.readout_s}
 
 
-def intrinsics_from(source: str | Path, fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> Intrinsics:
+def intrinsics_from(source: str | Path, fx: float, fy: float, cx: float, cy: float, width: int, height: int,
+                    readout_s: float = 0.0) -> Intrinsics:
     """:class:`Intrinsics` built from values read from ``source``; a bad value raises a one-line
     :class:`DatasetError` naming ``source`` (a file, or a config key such as ``dataset.intrinsics``)."""
     try:
-        values = float(fx), float(fy), float(cx), float(cy), int(width), int(height)
+        values = float(fx), float(fy), float(cx), float(cy), int(width), int(height), float(readout_s)
     except (TypeError, ValueError):
-        raise DatasetError(source, f"fx, fy, cx, cy, width, height must be numbers, got {fx}, {fy}, {cx}, {cy}, {width}, {height}") from None
+        raise DatasetError(source, f"fx, fy, cx, cy, width, height, readout_s must be numbers, got {fx}, {fy}, {cx}, {cy}, {width}, "
+                                   f"{height}, {readout_s}") from None
     try:
         return Intrinsics(*values)
     except DatasetError as e:

@@ -48,6 +48,7 @@ class KLGSequence(SequenceDataset):
         jpeg_swap_rb: undo Logger2's red/blue swap in JPEG colour payloads.
         raw_swap_rb: swap red/blue in raw colour payloads (logs from other tools).
         name: sequence name (default: the file name without extension).
+        readout_s: the camera's rolling-shutter readout in seconds (0 = a global shutter; the Xtion: 0.03).
     """
 
     def __init__(
@@ -63,10 +64,11 @@ class KLGSequence(SequenceDataset):
         jpeg_swap_rb: bool = True,
         raw_swap_rb: bool = False,
         name: str | None = None,
+        readout_s: float = 0.0,
     ) -> None:
         self.path = require_file(root, "KLG log")
         self.name = name or self.path.stem
-        self.intrinsics = intrinsics_from("dataset", fx, fy, cx, cy, width, height)
+        self.intrinsics = intrinsics_from("dataset", fx, fy, cx, cy, width, height, readout_s)
         if not depth_scale > 0:
             raise DatasetError("dataset.depth_scale", f"must be > 0, got {depth_scale}")
         self.depth_scale = float(depth_scale)

@@ -149,6 +149,8 @@ class TUMSequence(SequenceDataset):
         name: sequence name (default: the root folder's name).
         colour_camera: [fx, fy, cx, cy] of unregistered colour's camera (module docstring); None = registered.
         colour_offset: [x, y] metres, that camera's centre in the depth camera's frame (needs colour_camera).
+        readout_s: the cameras' rolling-shutter readout in seconds (:class:`~data_modules.frame.Intrinsics`);
+            0 = a global shutter. ``conf/dataset/tum.yaml`` gives the Kinect's and Xtion's 0.03.
     """
 
     default_camera = "fr3"
@@ -172,6 +174,7 @@ class TUMSequence(SequenceDataset):
         name: str | None = None,
         colour_camera: list[float] | None = None,
         colour_offset: list[float] | None = None,
+        readout_s: float = 0.0,
     ) -> None:
         self.root = require_dir(root, f"{type(self).__name__} sequence folder")
         self.name = name or self.root.name
@@ -212,7 +215,7 @@ class TUMSequence(SequenceDataset):
         if width is None or height is None:
             h, w = read_rgb(self.rgb_paths[0]).shape[:2]
             width, height = width or w, height or h
-        self.intrinsics = intrinsics_from(f"dataset (camera {camera})", *vals, width, height)
+        self.intrinsics = intrinsics_from(f"dataset (camera {camera})", *vals, width, height, readout_s)
 
         self._set_up_remapping(undistort, colour_camera, colour_offset)
 

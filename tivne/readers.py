@@ -91,6 +91,7 @@ class TUMReader(Settings):
     gt_file: str = "groundtruth.txt"
     colour_camera: tuple[float, ...] | None = None
     colour_offset: tuple[float, ...] | None = None
+    readout_s: float = setting(0.0, ge=0, lt=1)  # the rolling shutter's readout (0 = global)
 
     def check(self) -> None:
         if self.distortion is not None and len(self.distortion) != 5:
@@ -164,6 +165,7 @@ class KLGReader(Settings):
     depth_scale: float = setting(1000.0, gt=0)
     jpeg_swap_rb: bool = True
     raw_swap_rb: bool = False
+    readout_s: float = setting(0.0, ge=0, lt=1)  # the rolling shutter's readout (0 = global)
 
 
 @dataclass(frozen=True)

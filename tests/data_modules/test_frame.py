@@ -68,6 +68,17 @@ def test_intrinsics_checks_and_resize():
     assert K.as_dict()["width"] == 640
 
 
+def test_a_rolling_shutters_readout_is_checked_and_kept_by_a_resize():
+    K = Intrinsics(500.0, 400.0, 319.5, 239.5, 640, 480, readout_s=0.03)
+    assert K.resized(320, 240).readout_s == 0.03 and K.as_dict()["readout_s"] == 0.03
+    assert Intrinsics(500.0, 400.0, 319.5, 239.5, 640, 480).readout_s == 0.0  # a global shutter unless said
+    for bad in (-0.01, 1.5, float("nan")):
+        with pytest.raises(DatasetError, match=r"^intrinsics: readout_s must be in \[0, 1\) seconds"):
+            Intrinsics(500.0, 400.0, 319.5, 239.5, 640, 480, readout_s=bad)
+    with pytest.raises(DatasetError, match=r"^dataset: fx, fy, cx, cy, width, height, readout_s must be numbers"):
+        intrinsics_from("dataset", 525, 525, 320, 240, 640, 480, readout_s="fast")
+
+
 def test_principal_point_must_lie_in_the_image():
     # the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5] (pixel centres at integers)
     Intrinsics(500.0, 500.0, -0.5, -0.5, 640, 480)
@@ -85,5 +96,5 @@ def test_intrinsics_from_names_the_source():
         intrinsics_from("dataset.intrinsics", 525, 525, 5000, 240, 640, 480)
     with pytest.raises(DatasetError, match=r"^cam\.txt: fy must be finite, got nan"):
         intrinsics_from("cam.txt", 525, float("nan"), 320, 240, 640, 480)
-    with pytest.raises(DatasetError, match=r"^dataset: fx, fy, cx, cy, width, height must be numbers"):
+    with pytest.raises(DatasetError, match=r"^dataset: fx, fy, cx, cy, width, height, readout_s must be numbers"):
         intrinsics_from("dataset", "abc", 525, 320, 240, 640, 480)

@@ -45,7 +45,8 @@ def test_round_trip_association_and_intrinsics(tmp_path):
     assert truth.matched == [0, 1, 2, 4, 5] and len(ds) == 5 and ds.dropped_rgb == 1
     np.testing.assert_array_equal(ds.timestamps, truth.rgb_ts)
     k = ds.intrinsics
-    assert (k.fx, k.fy, k.cx, k.cy, k.width, k.height) == (535.4, 539.2, 320.1, 247.6, W, H)
+    assert (k.fx, k.fy, k.cx, k.cy, k.width, k.height, k.readout_s) == (535.4, 539.2, 320.1, 247.6, W, H, 0.0)
+    assert TUMSequence(tmp_path / "rgbd_dataset_freiburg3_walking_xyz", readout_s=0.03).intrinsics.readout_s == 0.03
     assert not ds.undistort and not ds.has_gt_poses and not ds.has_masks
     for i in range(len(ds)):
         f = ds[i]

@@ -69,6 +69,8 @@ def test_the_two_provider_allowlists_agree():
     ({"_target_": "data_modules.tum.TUMSequence", "root": "x", "depth_scale": float("nan")}, r"dataset.depth_scale=nan: must be a finite"),
     ({"_target_": "data_modules.tum.TUMSequence", "root": "x", "speed": 2}, r"dataset.speed: unknown setting"),
     ({"_target_": "data_modules.klg.KLGSequence", "root": "x", "width": 1.5}, r"dataset.width=1.5: must be an integer"),
+    ({"_target_": "data_modules.tum.TUMSequence", "root": "x", "readout_s": -0.03}, r"dataset.readout_s=-0.03: must be >= 0 and < 1"),
+    ({"_target_": "data_modules.tum.BonnSequence", "root": "x", "readout_s": 2}, r"dataset.readout_s=2.0: must be >= 0 and < 1"),
     ({"_target_": "data_modules.cofusion.CoFusionSequence", "root": "x", "original_is_ray_distance": 1}, r"original_is_ray_distance=1"),
     ({"_target_": "data_modules.synthetic.SyntheticSequence", "sensor": {"axial": "big"}}, r"dataset.sensor.axial='big': must be a finite number"),
     ({"_target_": "data_modules.folder.FolderSequence", "root": "x", "intrinsics": {"fx": 1, "fz": 2}}, r"dataset.intrinsics.fz: unknown"),
