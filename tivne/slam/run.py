@@ -133,7 +133,7 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
     loop = SlamLoop(
         field=field,
         intrinsics=intrinsics,
-        tracker=Tracker(s.tracking, s.field_tracking, s.odometry, s.render, s.loss),
+        tracker=Tracker(s.tracking, s.field_tracking, s.odometry, s.render, s.loss, readout_s=intrinsics.readout_s),
         mapper=mapper,
         keyframes=KeyframeStore(s.keyframe),
         policy=KeyframePolicy(s.keyframe),

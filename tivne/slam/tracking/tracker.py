@@ -46,10 +46,10 @@ import torch
 from data_modules.frame import Frame
 from tivne.config import FieldTrackingConfig, LossWeights, OdometryConfig, RenderConfig, TrackingConfig
 from tivne.field.networks import TimeVaryingField
-from tivne.geometry import invert_pose, orthonormalize_pose, pose_difference
+from tivne.geometry import invert_pose, orthonormalize_pose, pose_difference, se3_log
 from tivne.render.rays import View
 from tivne.slam.tracking.field import predict_pose, track_frame
-from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
+from tivne.slam.tracking.odometry import OdometryResult, Shutter, frame_pyramid, track_pyramids
 from tivne.slam.tracking.overlap import views_seeing
 from tivne.slam.tracking.pyramid import PyramidLevel
 from tivne.slam.tracking.result import TrackResult, TrackStatus
@@ -85,11 +85,13 @@ FramePyramid = tuple[PyramidSource, list[PyramidLevel]]  # a frame's pyramid and
 
 @dataclass
 class Reference:
-    """A frame the odometry tracks against: its frame id, pyramid (finest first) and the pyramid's source."""
+    """A frame the odometry tracks against: its frame id, pyramid (finest first), the pyramid's source and,
+    with a rolling shutter, the camera's velocity (6,) when the frame was taken (its rows' motion)."""
 
     frame_id: int
     pyramid: list[PyramidLevel]
     source: PyramidSource
+    velocity: torch.Tensor | None = None
 
 
 @dataclass
@@ -106,6 +108,11 @@ class TrackingCounts:
     frames: int = 0
     field_iters: int = 0
     reused: int = 0
+
+
+def twist_per_second(before: torch.Tensor, after: torch.Tensor, dt: float) -> torch.Tensor:
+    """(6,) float64 body twist (v, ω) per second carrying c2w ``before`` to ``after`` (4, 4) in dt seconds."""
+    return se3_log((invert_pose(before.double()) @ after.double())[None])[0] / dt
 
 
 def pose_jump(pose: torch.Tensor, predicted: torch.Tensor) -> tuple[float, float]:
@@ -144,15 +151,21 @@ class Tracker:
     REUSE_TRIES = 2  # stored references verified by an alignment at a switch, at most
 
     def __init__(
-        self, cfg: TrackingConfig, field_cfg: FieldTrackingConfig, odometry: OdometryConfig, render: RenderConfig, weights: LossWeights
+        self, cfg: TrackingConfig, field_cfg: FieldTrackingConfig, odometry: OdometryConfig, render: RenderConfig, weights: LossWeights,
+        readout_s: float = 0.0,
     ) -> None:
+        """``readout_s``: the camera's rolling-shutter readout (:class:`Shutter`; 0 = global shutter)."""
         self.cfg, self.field_cfg, self.odometry, self.render, self.weights = cfg, field_cfg, odometry, render, weights
+        self.readout_s = readout_s
         wide = dict(levels=odometry.levels + 1, max_iterations=2 * odometry.max_iterations)
         self.recovery = dataclasses.replace(odometry, **wide)
         self.reference: Reference | None = None
         self.stored: list[Reference] = []  # past and current references, oldest first
         self.counts = TrackingCounts()
         self._current: FramePyramid | None = None  # this frame's, until it becomes a reference or the next comes
+        self._motion: tuple[torch.Tensor, float] | None = None  # this frame's previous pose and the time since it
+        self._velocity: torch.Tensor | None = None  # this frame's, once tracked (a reference made of it keeps it)
+        self._last_tracked = True  # whether the last frame's pose was measured (TRACKED)
 
     @property
     def uses_odometry(self) -> bool:
@@ -164,6 +177,7 @@ class Tracker:
     ) -> TrackResult:
         """The pose of the ``index``-th frame of the stream (``tau`` its field time, ``mask`` its
         motion mask or None). The first frame defines the world frame."""
+        self._motion = self._velocity = None
         if index == 0:
             eye = torch.eye(4, device=frame.depth.device, dtype=frame.depth.dtype)
             return TrackResult(TrackStatus.TRACKED, eye, eye)
@@ -172,11 +186,17 @@ class Tracker:
         if int(usable.sum()) < self.cfg.min_static_pixels:
             self.counts.without_tracking += 1
             self.warn(f"frame {index} (t={float(frame.timestamp):.3f}s): only {int(usable.sum())} static pixels with depth; not tracked, not mapped")
+            self._last_tracked = False
             return TrackResult(TrackStatus.NO_DEPTH, previous[-1].clone(), previous[-1].clone())
         start = time.perf_counter()
         query = last_mapped_tau if self.field_cfg.query_time == "last_mapped" else tau
         steps = velocity_steps(poses.recent_times(2), float(frame.timestamp))
+        dt = float(frame.timestamp) - poses.recent_times(1)[-1]
+        # the velocity is read from the last pose: not from one the odometry did not measure (lost, or the wider retry's)
+        self._motion = (previous[-1], dt) if self.readout_s > 0 and dt > 0 and self._last_tracked else None
         result = self._track(View(index, query, frame.rgb, frame.depth, mask, previous[-1]), previous, steps, poses, field, K, generator)
+        self._last_tracked = result.status is TrackStatus.TRACKED
+        self._velocity = twist_per_second(self._motion[0], result.pose, dt) if self._motion is not None and self._last_tracked else None
         self.counts.seconds += time.perf_counter() - start
         self.counts.frames += 1
         self.counts.field_iters += self.field_cfg.iters if self.cfg.reads_map else 0
@@ -226,30 +246,46 @@ class Tracker:
         ref_pose = poses.pose(ref.frame_id).double()
         current = self._current[1]
         to_ref = invert_pose(ref_pose)
-        result = track_pyramids(ref.pyramid, current, to_ref @ predicted.double(), self.odometry, also=self._companions(view, ref, ref_pose, predicted, poses, K))
+        also, others = self._companions(view, ref, ref_pose, predicted, poses, K)
+        shutters = self._shutters(to_ref, [ref, *others])
+        result = track_pyramids(ref.pyramid, current, to_ref @ predicted.double(), self.odometry, also=also, shutters=shutters)
         recovered = False
         if not result.ok:  # a wider basin, from the last good pose (no motion)
-            retry = track_pyramids(ref.pyramid, current, to_ref @ last.double(), self.recovery)
+            retry = track_pyramids(ref.pyramid, current, to_ref @ last.double(), self.recovery, shutters=shutters[:2])
             recovered = retry.ok
             result = retry if retry.ok or retry.inlier_ratio > result.inlier_ratio else result
         return (ref_pose @ result.T_ref_cur).to(predicted.dtype), result, recovered
 
     def _companions(
         self, view: View, ref: Reference, ref_pose: torch.Tensor, predicted: torch.Tensor, poses: PoseLookup, K: torch.Tensor
-    ) -> tuple[tuple[list[PyramidLevel], torch.Tensor], ...]:
+    ) -> tuple[tuple[tuple[list[PyramidLevel], torch.Tensor], ...], list[Reference]]:
         """Up to ``tracking.joint_references`` stored references besides ``ref`` that see the frame
         at its predicted pose as a reference must (reprojection overlap at least
         reference_min_overlap), from within reuse_max_deg, the most overlapping first, each with its
         T_other_ref (4, 4): aligned jointly with ``ref`` at the finest level, their pixels average out
-        each single view's noise, and older views tie the pose to where it was seen before."""
+        each single view's noise, and older views tie the pose to where it was seen before. Also the
+        companions themselves, in that order."""
         cfg = self.cfg
         others = [other for other in self.stored if other is not ref]
         if cfg.joint_references <= 0 or not others:
-            return ()
+            return (), []
         other_poses = self._poses_of(others, poses)
         seeing = views_seeing(dataclasses.replace(view, pose=predicted), other_poses, K, math.inf, cfg.reuse_max_deg, cfg.reference_min_overlap)
         best = sorted(seeing, key=lambda item: -item[1])[: cfg.joint_references]
-        return tuple((others[i].pyramid, invert_pose(other_poses[i]) @ ref_pose) for i, _ in best)
+        chosen = [others[i] for i, _ in best]
+        return tuple((other.pyramid, invert_pose(other_poses[i]) @ ref_pose) for other, (i, _) in zip(chosen, best)), chosen
+
+    def _shutters(self, to_ref: torch.Tensor, references: list[Reference]) -> tuple[Shutter | None, ...]:
+        """This frame's rolling shutter (its velocity read from the estimate and its previous pose, taken
+        into the reference's frame by ``to_ref`` (4, 4)), then each reference's; () for a global shutter."""
+        if self._motion is None:
+            return ()
+        previous, dt = self._motion
+        current = Shutter(self.readout_s, torch.zeros(6, dtype=torch.float64), to_ref.double() @ previous.double(), dt)
+        return (current, *map(self._shutter_of, references))
+
+    def _shutter_of(self, ref: Reference) -> Shutter | None:
+        return None if ref.velocity is None else Shutter(self.readout_s, ref.velocity)
 
     def update_reference(
         self, view: View, K: torch.Tensor, result: TrackResult, is_keyframe: bool, poses: PoseLookup | None = None
@@ -280,7 +316,7 @@ class Tracker:
             self.reference = self.stored[reuse]
             self.counts.reused += 1
         else:
-            self.reference = Reference(view.frame_id, pyramid, source)
+            self.reference = Reference(view.frame_id, pyramid, source, self._velocity)
             self.stored.append(self.reference)
             if len(self.stored) > cfg.stored_references:
                 # this frame is not in the trajectory yet: its pose is the view's; without poses the oldest goes
@@ -304,7 +340,8 @@ class Tracker:
         ``ref_pose``) from their current relative pose: the odometry converges, keeps
         reuse_min_overlap of the frame in view and reference_min_inliers of its pixels (a view seen
         with other blur or exposure, drifted beyond the basin, or already falling behind, is not reused)."""
-        result = track_pyramids(ref.pyramid, pyramid, invert_pose(ref_pose.double()) @ pose.double(), self.odometry)
+        shutters = () if self._velocity is None else (Shutter(self.readout_s, self._velocity), self._shutter_of(ref))
+        result = track_pyramids(ref.pyramid, pyramid, invert_pose(ref_pose.double()) @ pose.double(), self.odometry, shutters=shutters)
         return result.ok and result.overlap >= self.cfg.reuse_min_overlap and result.inlier_ratio >= self.cfg.reference_min_inliers
 
     def warn(self, message: str) -> None:
@@ -322,7 +359,8 @@ class Tracker:
         if self.reference is None:
             return {"reference": None, "stored": [], "counts": counts}
         # the source's tensors as they are (dataclasses.asdict would deep-copy them first)
-        saved = [{"frame_id": ref.frame_id} | {f.name: getattr(ref.source, f.name) for f in dataclasses.fields(ref.source)} for ref in self.stored]
+        source = [{f.name: getattr(ref.source, f.name) for f in dataclasses.fields(ref.source)} for ref in self.stored]
+        saved = [{"frame_id": ref.frame_id, "velocity": ref.velocity} | own for ref, own in zip(self.stored, source)]
         current = next(i for i, ref in enumerate(self.stored) if ref is self.reference)
         return {"reference": current, "stored": saved, "counts": counts}
 
@@ -332,7 +370,7 @@ class Tracker:
 
         def rebuilt(saved: dict) -> Reference:
             source = PyramidSource(saved["rgb"], saved["depth"], saved["dynamic"], saved["K"])
-            return Reference(int(saved["frame_id"]), source.pyramid(self.recovery), source)
+            return Reference(int(saved["frame_id"]), source.pyramid(self.recovery), source, saved.get("velocity"))
 
         self.stored = [rebuilt(saved) for saved in state["stored"]]
         self.reference = None if state["reference"] is None else self.stored[int(state["reference"])]

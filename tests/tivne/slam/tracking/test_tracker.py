@@ -13,7 +13,7 @@ from data_modules.frame import Frame
 from data_modules.synthetic import SyntheticSequence
 from tivne.config import FieldTrackingConfig, LossWeights, OdometryConfig, RenderConfig, TrackingConfig
 from tivne.field.networks import TimeVaryingField
-from tivne.geometry import invert_pose, se3_exp
+from tivne.geometry import invert_pose, se3_exp, se3_log
 from tivne.render.rays import View
 from tivne.slam.tracking import TrackStatus
 from tivne.slam.tracking.tracker import Tracker, pose_jump, reference_to_drop, velocity_steps
@@ -198,9 +198,39 @@ def test_stored_references_that_see_the_frame_are_aligned_jointly(room):
     assert [r.frame_id for r in tracker.stored] == [0, 1, 2] and tracker.reference.frame_id == 2
     target = (world @ turned(room, 2.0)).float()
     view = view_of(frame_at(room, turned(room, 2.0), 3), target)
-    also = tracker._companions(view, tracker.reference, lookup.pose(2), target.double(), lookup, K)
+    also, chosen = tracker._companions(view, tracker.reference, lookup.pose(2), target.double(), lookup, K)
     assert len(also) == 1 and also[0][0] is tracker.stored[0].pyramid  # 25 degrees away: not a companion
+    assert chosen == [tracker.stored[0]]
     assert torch.allclose(also[0][1], invert_pose(lookup.pose(0)) @ lookup.pose(2))
     result = track(tracker, frame_at(room, turned(room, 2.0), 3), poses, K)
     t_err, r_err = pose_jump(result.pose, target)
     assert result.status is TrackStatus.TRACKED and t_err < 2e-3 and r_err < 0.1, (t_err, r_err)
+
+
+@pytest.mark.parametrize("readout_s", [0.0, 0.03])
+def test_a_reference_keeps_the_velocity_its_rolling_shutter_was_read_at(room, readout_s):
+    """With a rolling shutter each frame's velocity (from its tracked pose and the one before) goes with
+    the reference made of it, through a checkpoint; a global shutter keeps none."""
+    tracker = Tracker(TrackingConfig(reference="frame"), FieldTrackingConfig(), OdometryConfig(), RenderConfig(), LossWeights(),
+                      readout_s=readout_s)
+    K = room.intrinsics.K()
+    poses = [torch.eye(4)]
+    first = track(tracker, frame_at(room, room.camera_pose(0), 0), [], K)
+    tracker.update_reference(view_of(frame_at(room, room.camera_pose(0), 0), first.pose), K, first, True)
+    for i in range(1, 3):
+        frame = frame_at(room, room.camera_pose(i), i)
+        result = track(tracker, frame, poses, K)
+        assert result.status is TrackStatus.TRACKED
+        poses.append(result.pose)
+    assert tracker.update_reference(view_of(frame, poses[-1]), K, result, is_keyframe=True)
+    assert tracker.stored[0].velocity is None  # the first frame has no motion to read
+    if readout_s == 0:
+        assert tracker.reference.velocity is None
+        return
+    expected = se3_log((invert_pose(poses[1].double()) @ poses[2].double())[None])[0] * 30  # per second at 30 Hz
+    assert torch.allclose(tracker.reference.velocity, expected, atol=1e-6)
+    truth = se3_log((invert_pose(relative(room, 1).double()) @ relative(room, 2).double())[None])[0] * 30
+    assert (tracker.reference.velocity - truth).abs().max() < 0.05  # the camera's own motion (m/s, rad/s)
+    restored = make_tracker(reference="adaptive")
+    restored.load_state_dict(tracker.state_dict())
+    assert torch.equal(restored.reference.velocity, tracker.reference.velocity) and restored.stored[0].velocity is None
