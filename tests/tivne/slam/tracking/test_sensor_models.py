@@ -1,4 +1,4 @@
-"""The odometry's sensor models: a rolling shutter's row times and motion."""
+"""tivne.slam.tracking.sensor, the sensor models of the odometry: a rolling shutter's row times and motion."""
 
 from __future__ import annotations
 
