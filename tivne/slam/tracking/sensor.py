@@ -27,8 +27,7 @@ class Shutter:
         """With ``previous``: the shutter moving at the velocity from it to the estimate T (4, 4) T_ref_cur."""
         if self.previous is None or self.dt <= 0:
             return self
-        xi = se3_log((invert_pose(self.previous.to(T)) @ T)[None])[0] / self.dt
-        return Shutter(self.readout_s, xi, self.previous, self.dt)
+        return Shutter(self.readout_s, twist_per_second(self.previous.to(T), T, self.dt), self.previous, self.dt)
 
     def row_times(self, v: torch.Tensor, height: int) -> torch.Tensor:
         """(N,) seconds after the middle row at which rows v (N,) of an ``height``-row level were seen."""
@@ -39,6 +38,10 @@ class Shutter:
         xi = self.velocity.to(p)
         return dt * (torch.linalg.cross(xi[3:, None].expand_as(p), p, dim=0) + xi[:3, None])
 
+
+def twist_per_second(before: torch.Tensor, after: torch.Tensor, dt: float) -> torch.Tensor:
+    """(6,) float64 body twist (v, ω) per second carrying c2w ``before`` to ``after`` (4, 4) in dt seconds."""
+    return se3_log((invert_pose(before.double()) @ after.double())[None])[0] / dt
 
 
 def parallax_pixels(z: torch.Tensor, focal: float, baseline: float) -> torch.Tensor:

@@ -46,13 +46,14 @@ import torch
 from data_modules.frame import Frame
 from tivne.config import FieldTrackingConfig, LossWeights, OdometryConfig, RenderConfig, TrackingConfig
 from tivne.field.networks import TimeVaryingField
-from tivne.geometry import invert_pose, orthonormalize_pose, pose_difference, se3_log
+from tivne.geometry import invert_pose, orthonormalize_pose, pose_difference
 from tivne.render.rays import View
 from tivne.slam.tracking.field import predict_pose, track_frame
-from tivne.slam.tracking.odometry import OdometryResult, Shutter, frame_pyramid, track_pyramids
+from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
 from tivne.slam.tracking.overlap import views_seeing
 from tivne.slam.tracking.pyramid import PyramidLevel
 from tivne.slam.tracking.result import TrackResult, TrackStatus
+from tivne.slam.tracking.sensor import Shutter, twist_per_second
 
 
 class PoseLookup(Protocol):
@@ -110,11 +111,6 @@ class TrackingCounts:
     reused: int = 0
 
 
-def twist_per_second(before: torch.Tensor, after: torch.Tensor, dt: float) -> torch.Tensor:
-    """(6,) float64 body twist (v, ω) per second carrying c2w ``before`` to ``after`` (4, 4) in dt seconds."""
-    return se3_log((invert_pose(before.double()) @ after.double())[None])[0] / dt
-
-
 def pose_jump(pose: torch.Tensor, predicted: torch.Tensor) -> tuple[float, float]:
     """(metres, degrees) between a tracked and a predicted c2w pose."""
     return pose_difference(predicted, pose)
@@ -163,7 +159,7 @@ class Tracker:
         self.stored: list[Reference] = []  # past and current references, oldest first
         self.counts = TrackingCounts()
         self._current: FramePyramid | None = None  # this frame's, until it becomes a reference or the next comes
-        self._motion: tuple[torch.Tensor, float] | None = None  # this frame's previous pose and the time since it
+        self._shutter_dt: float | None = None  # seconds since the last pose, while this frame's shutter is modelled
         self._velocity: torch.Tensor | None = None  # this frame's, once tracked (a reference made of it keeps it)
         self._last_tracked = True  # whether the last frame's pose was measured (TRACKED)
 
@@ -177,7 +173,7 @@ class Tracker:
     ) -> TrackResult:
         """The pose of the ``index``-th frame of the stream (``tau`` its field time, ``mask`` its
         motion mask or None). The first frame defines the world frame."""
-        self._motion = self._velocity = None
+        self._shutter_dt = self._velocity = None
         if index == 0:
             eye = torch.eye(4, device=frame.depth.device, dtype=frame.depth.dtype)
             return TrackResult(TrackStatus.TRACKED, eye, eye)
@@ -190,13 +186,15 @@ class Tracker:
             return TrackResult(TrackStatus.NO_DEPTH, previous[-1].clone(), previous[-1].clone())
         start = time.perf_counter()
         query = last_mapped_tau if self.field_cfg.query_time == "last_mapped" else tau
-        steps = velocity_steps(poses.recent_times(2), float(frame.timestamp))
-        dt = float(frame.timestamp) - poses.recent_times(1)[-1]
+        times = poses.recent_times(2)
+        steps = velocity_steps(times, float(frame.timestamp))
+        dt = float(frame.timestamp) - times[-1]
         # the velocity is read from the last pose: not from one the odometry did not measure (lost, or the wider retry's)
-        self._motion = (previous[-1], dt) if self.readout_s > 0 and dt > 0 and self._last_tracked else None
+        self._shutter_dt = dt if self.readout_s > 0 and dt > 0 and self._last_tracked else None
         result = self._track(View(index, query, frame.rgb, frame.depth, mask, previous[-1]), previous, steps, poses, field, K, generator)
         self._last_tracked = result.status is TrackStatus.TRACKED
-        self._velocity = twist_per_second(self._motion[0], result.pose, dt) if self._motion is not None and self._last_tracked else None
+        if self._shutter_dt is not None and self._last_tracked:
+            self._velocity = twist_per_second(previous[-1], result.pose, dt)
         self.counts.seconds += time.perf_counter() - start
         self.counts.frames += 1
         self.counts.field_iters += self.field_cfg.iters if self.cfg.reads_map else 0
@@ -247,7 +245,7 @@ class Tracker:
         current = self._current[1]
         to_ref = invert_pose(ref_pose)
         also, others = self._companions(view, ref, ref_pose, predicted, poses, K)
-        shutters = self._shutters(to_ref, [ref, *others])
+        shutters = self._shutters(to_ref @ last.double(), [ref, *others])
         result = track_pyramids(ref.pyramid, current, to_ref @ predicted.double(), self.odometry, also=also, shutters=shutters)
         recovered = False
         if not result.ok:  # a wider basin, from the last good pose (no motion)
@@ -272,16 +270,14 @@ class Tracker:
         other_poses = self._poses_of(others, poses)
         seeing = views_seeing(dataclasses.replace(view, pose=predicted), other_poses, K, math.inf, cfg.reuse_max_deg, cfg.reference_min_overlap)
         best = sorted(seeing, key=lambda item: -item[1])[: cfg.joint_references]
-        chosen = [others[i] for i, _ in best]
-        return tuple((other.pyramid, invert_pose(other_poses[i]) @ ref_pose) for other, (i, _) in zip(chosen, best)), chosen
+        return tuple((others[i].pyramid, invert_pose(other_poses[i]) @ ref_pose) for i, _ in best), [others[i] for i, _ in best]
 
-    def _shutters(self, to_ref: torch.Tensor, references: list[Reference]) -> tuple[Shutter | None, ...]:
-        """This frame's rolling shutter (its velocity read from the estimate and its previous pose, taken
-        into the reference's frame by ``to_ref`` (4, 4)), then each reference's; () for a global shutter."""
-        if self._motion is None:
+    def _shutters(self, previous: torch.Tensor, references: list[Reference]) -> tuple[Shutter | None, ...]:
+        """This frame's rolling shutter (its velocity read from the estimate and the last pose, ``previous``
+        (4, 4) in the reference's frame), then each reference's; () for a global shutter."""
+        if self._shutter_dt is None:
             return ()
-        previous, dt = self._motion
-        current = Shutter(self.readout_s, torch.zeros(6, dtype=torch.float64), to_ref.double() @ previous.double(), dt)
+        current = Shutter(self.readout_s, torch.zeros(6, dtype=torch.float64), previous, self._shutter_dt)
         return (current, *map(self._shutter_of, references))
 
     def _shutter_of(self, ref: Reference) -> Shutter | None:
