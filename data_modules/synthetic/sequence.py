@@ -280,6 +280,26 @@ class SyntheticSequence(SequenceDataset):
         rgb = (view.rgb.clamp(0, 1) * 255.0).round() / 255.0
         return rgb.float(), view.depth.float(), labels
 
+    def render_rolling_shutter(
+        self, c2w: torch.Tensor, velocity: torch.Tensor, readout_s: float, t: float = 0.0, band: int = 6
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Noise-free rgb (H, W, 3) and depth (H, W) of the scene at ``t`` as a rolling shutter sees
+        them: rows read top to bottom over ``readout_s`` seconds, each band of ``band`` rows rendered
+        (:meth:`render_at`) from the pose the camera, moving at ``velocity`` (6,) (body twist (v, ω)
+        per second: c2w(s) = c2w · exp(s·velocity)), has when that band is read; ``c2w`` (4, 4) is the
+        camera at the middle row."""
+        xi = torch.as_tensor(velocity, dtype=torch.float64)
+        twist = torch.zeros(4, 4, dtype=torch.float64)
+        twist[:3, :3] = torch.tensor([[0.0, -xi[5], xi[4]], [xi[5], 0.0, -xi[3]], [-xi[4], xi[3], 0.0]], dtype=torch.float64)
+        twist[:3, 3] = xi[:3]
+        H = self.height
+        rgb, depth = torch.zeros(H, self.width, 3), torch.zeros(H, self.width)
+        for r0 in range(0, H, band):
+            seconds = ((r0 + (min(band, H - r0) - 1) / 2) - (H - 1) / 2) / H * readout_s
+            c, d, _ = self.render_at(torch.as_tensor(c2w, dtype=torch.float64) @ torch.linalg.matrix_exp(seconds * twist), t)
+            rgb[r0:r0 + band], depth[r0:r0 + band] = c[r0:r0 + band], d[r0:r0 + band]
+        return rgb, depth
+
     def render_arrays(self, i: int, noise: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Render frame ``i`` (no cache): rgb (H, W, 3) uint8, depth (H, W) float32 metres (0 = no
         measurement), labels (H, W) uint8 (0 = static, k = ``object_names[k - 1]``).

@@ -157,3 +157,21 @@ def test_render_at_a_frames_pose_and_time_is_that_frames_clean_render():
     rgb, depth, labels = ds.render_at(ds.camera_pose(2), float(ds.timestamps[2]))
     assert torch.equal(depth, frame.depth) and torch.equal(labels > 0, frame.mask)
     assert torch.allclose(rgb, frame.rgb, atol=1.5 / 255)
+
+
+def test_a_rolling_shutter_render_sees_each_band_of_rows_from_where_the_camera_was_then():
+    """Still, it is the global render; turning, its middle rows are the render at the frame's pose and
+    its first rows the render from the pose readout_s / 2 earlier."""
+    ds = SyntheticSequence("cube", num_frames=2, width=48, height=36, cache_dir=None)
+    P, t = ds.camera_pose(0), 0.0
+    rgb, depth, _ = ds.render_at(P, t)
+    still = ds.render_rolling_shutter(P, torch.zeros(6), 0.03, t)
+    assert torch.equal(still[0], rgb) and torch.equal(still[1], depth)
+    velocity = torch.tensor([0.3, 0.0, 0.0, 0.0, 4.0, 0.0], dtype=torch.float64)  # 230 °/s about the camera's y
+    moving_rgb, moving = ds.render_rolling_shutter(P, velocity, 0.03, t, band=1)
+    middle = slice(17, 19)  # rows 17 and 18 are read 1/72 of the readout either side of the middle
+    assert (moving[middle] - depth[middle]).abs().max() < 0.05
+    twist = torch.zeros(4, 4, dtype=torch.float64)
+    twist[0, 2], twist[2, 0], twist[0, 3] = 4.0, -4.0, 0.3
+    first = ds.render_at(P @ torch.linalg.matrix_exp(-(35 / 2) / 36 * 0.03 * twist), t)[1]
+    assert torch.equal(moving[0], first[0]) and not torch.equal(moving[0], depth[0])

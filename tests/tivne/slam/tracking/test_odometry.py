@@ -175,16 +175,6 @@ def test_depth_colour_time_offset_is_compensated(room):
     assert pose_error(naive.T_ref_cur, dT)[1] > 0.1  # ignoring the offset costs ~ the offset's rotation
 
 
-def rolling_shutter_view(seq: SyntheticSequence, c2w: torch.Tensor, velocity: torch.Tensor, readout_s: float, band: int = 6):
-    """rgb, depth (H, W) as a rolling shutter sees them: each band of rows rendered from the pose the camera,
-    moving at ``velocity`` (6,) (body twist per second), has when that band is read (c2w: at the middle row)."""
-    rgb, depth = torch.zeros(H, W, 3), torch.zeros(H, W)
-    for r0 in range(0, H, band):
-        c, d, _ = seq.render_at(c2w @ se3_exp(((r0 + (band - 1) / 2) - (H - 1) / 2) / H * readout_s * velocity), 0.0)
-        rgb[r0:r0 + band], depth[r0:r0 + band] = c[r0:r0 + band], d[r0:r0 + band]
-    return rgb, depth
-
-
 def test_a_rolling_shutter_pair_is_aligned_once_its_rows_motion_is_modelled(room):
     """Two frames of a camera turning at 60-120 °/s, rows read over 30 ms: as if global, the pose is
     30 mm / 2° off; with each frame's velocity modelled, or the current one read from the estimate and
@@ -197,8 +187,8 @@ def test_a_rolling_shutter_pair_is_aligned_once_its_rows_motion_is_modelled(room
     v_cur = torch.tensor([-0.1, 0.2, 0.0, 1.5, -1.0, 0.0], dtype=torch.float64)
     P, dT = room.camera_pose(0), se3_exp(torch.tensor([0.02, -0.01, 0.01, 0.01, 0.03, -0.02], dtype=torch.float64))
     K, cfg = room.intrinsics.K(), OdometryConfig()
-    ref = frame_pyramid(*rolling_shutter_view(room, P, v_ref, readout), K, cfg)
-    cur = frame_pyramid(*rolling_shutter_view(room, P @ dT, v_cur, readout), K, cfg)
+    ref = frame_pyramid(*room.render_rolling_shutter(P, v_ref, readout), K, cfg)
+    cur = frame_pyramid(*room.render_rolling_shutter(P @ dT, v_cur, readout), K, cfg)
     as_global = pose_error(track_pyramids(ref, cur, None, cfg).T_ref_cur, dT)
     assert as_global[0] > 10.0 and as_global[1] > 1.0, as_global
     known = track_pyramids(ref, cur, None, cfg, shutters=(Shutter(readout, v_cur), Shutter(readout, v_ref)))
