@@ -37,7 +37,9 @@ class FieldTrackStats:
 @dataclass(frozen=True)
 class TrackResult:
     """pose (4, 4) c2w of the frame; predicted (4, 4): the motion model's pose; odometry / field: what
-    each tracker reported (None where it did not run); jump_m / jump_deg: tracked vs predicted."""
+    each tracker reported (None where it did not run); jump_m / jump_deg: tracked vs predicted;
+    velocity: with a rolling shutter, the camera's body twist (6,) float64 per second while the frame
+    was taken, read from the last pose and this one (None where the shutter is not modelled)."""
 
     status: TrackStatus
     pose: torch.Tensor
@@ -46,6 +48,7 @@ class TrackResult:
     field: FieldTrackStats | None = None
     jump_m: float = 0.0
     jump_deg: float = 0.0
+    velocity: torch.Tensor | None = None
 
     @property
     def lost(self) -> bool:

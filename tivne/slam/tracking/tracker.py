@@ -160,7 +160,6 @@ class Tracker:
         self.counts = TrackingCounts()
         self._current: FramePyramid | None = None  # this frame's, until it becomes a reference or the next comes
         self._shutter_dt: float | None = None  # seconds since the last pose, while this frame's shutter is modelled
-        self._velocity: torch.Tensor | None = None  # this frame's, once tracked (a reference made of it keeps it)
         self._last_tracked = True  # whether the last frame's pose was measured (TRACKED)
 
     @property
@@ -173,7 +172,7 @@ class Tracker:
     ) -> TrackResult:
         """The pose of the ``index``-th frame of the stream (``tau`` its field time, ``mask`` its
         motion mask or None). The first frame defines the world frame."""
-        self._shutter_dt = self._velocity = None
+        self._shutter_dt = None
         if index == 0:
             eye = torch.eye(4, device=frame.depth.device, dtype=frame.depth.dtype)
             return TrackResult(TrackStatus.TRACKED, eye, eye)
@@ -194,7 +193,7 @@ class Tracker:
         result = self._track(View(index, query, frame.rgb, frame.depth, mask, previous[-1]), previous, steps, poses, field, K, generator)
         self._last_tracked = result.status is TrackStatus.TRACKED
         if self._shutter_dt is not None and self._last_tracked:
-            self._velocity = twist_per_second(previous[-1], result.pose, dt)
+            result = dataclasses.replace(result, velocity=twist_per_second(previous[-1], result.pose, dt))
         self.counts.seconds += time.perf_counter() - start
         self.counts.frames += 1
         self.counts.field_iters += self.field_cfg.iters if self.cfg.reads_map else 0
@@ -307,12 +306,12 @@ class Tracker:
         reuse = None
         if known and cfg.reference != "frame":
             candidates = views_seeing(view, known, K, cfg.reuse_max_m, cfg.reuse_max_deg, cfg.reuse_min_overlap)[: self.REUSE_TRIES]
-            reuse = next((i for i, _ in candidates if self._aligns(self.stored[i], known[i], view.pose, pyramid)), None)
+            reuse = next((i for i, _ in candidates if self._aligns(self.stored[i], known[i], view.pose, pyramid, result.velocity)), None)
         if reuse is not None:
             self.reference = self.stored[reuse]
             self.counts.reused += 1
         else:
-            self.reference = Reference(view.frame_id, pyramid, source, self._velocity)
+            self.reference = Reference(view.frame_id, pyramid, source, result.velocity)
             self.stored.append(self.reference)
             if len(self.stored) > cfg.stored_references:
                 # this frame is not in the trajectory yet: its pose is the view's; without poses the oldest goes
@@ -331,12 +330,14 @@ class Tracker:
         """(4, 4) float64 c2w of each reference, as its pose owner holds it now."""
         return [poses.pose(ref.frame_id).double() for ref in references]
 
-    def _aligns(self, ref: Reference, ref_pose: torch.Tensor, pose: torch.Tensor, pyramid: list[PyramidLevel]) -> bool:
+    def _aligns(
+        self, ref: Reference, ref_pose: torch.Tensor, pose: torch.Tensor, pyramid: list[PyramidLevel], velocity: torch.Tensor | None
+    ) -> bool:
         """Whether this frame (``pyramid``, c2w ``pose``) aligns to the stored ``ref`` (c2w
         ``ref_pose``) from their current relative pose: the odometry converges, keeps
         reuse_min_overlap of the frame in view and reference_min_inliers of its pixels (a view seen
         with other blur or exposure, drifted beyond the basin, or already falling behind, is not reused)."""
-        shutters = () if self._velocity is None else (Shutter(self.readout_s, self._velocity), self._shutter_of(ref))
+        shutters = () if velocity is None else (Shutter(self.readout_s, velocity), self._shutter_of(ref))
         result = track_pyramids(ref.pyramid, pyramid, invert_pose(ref_pose.double()) @ pose.double(), self.odometry, shutters=shutters)
         return result.ok and result.overlap >= self.cfg.reuse_min_overlap and result.inlier_ratio >= self.cfg.reference_min_inliers
 
