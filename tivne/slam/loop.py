@@ -225,7 +225,7 @@ class SlamLoop:
             for frame_id, pose in self.keyframes.add(view):
                 self.trajectory.freeze(frame_id, pose)
             if self.backend is not None:
-                correction = self._correct_poses()
+                correction = self._correct_poses(result.velocity)
                 view = dataclasses.replace(view, pose=self.keyframes.pose(k).to(view.pose.dtype))
         mapping, ahead, new_reference = None, None, False
         maps = k == 0 or k % self.mapper.cfg.every == 0
@@ -253,12 +253,13 @@ class SlamLoop:
                 self._objects_now = None
         return view, keyframe, new_reference, mapping, correction, observed
 
-    def _correct_poses(self) -> Correction:
-        """The pose graph's step for a new keyframe: its edges and closures, every keyframe pose
-        corrected in the store (the trajectory, the odometry reference and the motion model read
-        theirs from there), voxels where corrected depth lands, the most moved keyframes re-fit."""
+    def _correct_poses(self, velocity: torch.Tensor | None) -> Correction:
+        """The pose graph's step for a new keyframe (``velocity``: its camera's, as tracked): its edges
+        and closures, every keyframe pose corrected in the store (the trajectory, the odometry
+        reference and the motion model read theirs from there), voxels where corrected depth lands,
+        the most moved keyframes re-fit."""
         K, cfg = self.K, self.backend.cfg
-        poses = self.backend.add_keyframe(self.keyframes.views(), K)
+        poses = self.backend.add_keyframe(self.keyframes.views(), K, velocity)
 
         def refit(views: list[View]) -> None:  # the stale part of the field, at the corrected (fixed) poses
             if cfg.refit_iters:

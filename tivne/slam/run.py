@@ -141,7 +141,7 @@ def build_loop(settings: TrainSettings, intrinsics: Intrinsics, masks: MaskProvi
         masks=masks,
         seed=seed,
         objects=ObjectTracker(s.objects, intrinsics.K(), s.odometry, masks=getattr(masks, "name", "none")) if s.objects.track else None,
-        backend=make_backend(s.backend, s.odometry),
+        backend=make_backend(s.backend, s.odometry, intrinsics.readout_s),
     )
     if loop.objects is not None and s.object_field.tracks == "tracked":  # field=objects placed by the tracker's live poses
         attach_tracks(field, None, s.object_field, lambda: loop.object_tracks)

@@ -14,11 +14,12 @@ from __future__ import annotations
 from tivne.config import BackendConfig, OdometryConfig
 
 
-def make_backend(cfg: BackendConfig | None, odometry: OdometryConfig):
-    """A :class:`~tivne.slam.backend.posegraph.KeyframePoseGraph` for ``backend.method=graph``,
-    None for ``none``; an ImportError (one line, how to install gtsam) when gtsam is missing."""
+def make_backend(cfg: BackendConfig | None, odometry: OdometryConfig, readout_s: float = 0.0):
+    """A :class:`~tivne.slam.backend.posegraph.KeyframePoseGraph` for ``backend.method=graph``
+    (``readout_s``: the camera's rolling shutter, which its edges model), None for ``none``; an
+    ImportError (one line, how to install gtsam) when gtsam is missing."""
     if cfg is None or cfg.method == "none":
         return None
     from tivne.slam.backend.posegraph import KeyframePoseGraph
 
-    return KeyframePoseGraph(cfg, odometry)
+    return KeyframePoseGraph(cfg, odometry, readout_s)

@@ -24,6 +24,7 @@ from tivne.render.rays import View
 from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_pyramids
 from tivne.slam.tracking.overlap import view_overlaps, views_seeing
 from tivne.slam.tracking.pyramid import PyramidLevel
+from tivne.slam.tracking.sensor import Shutter
 
 
 def covisible_candidates(views: list[View], new: View, K: torch.Tensor, cfg: BackendConfig) -> list[int]:
@@ -69,14 +70,15 @@ def keyframe_pyramid(view: View, K: torch.Tensor, odometry: OdometryConfig, cfg:
 
 def align(
     ref: View, cur: View, ref_pyr: list[PyramidLevel], cur_pyr: list[PyramidLevel], odometry: OdometryConfig,
-    cfg: BackendConfig, loop: bool,
+    cfg: BackendConfig, loop: bool, shutters: tuple[Shutter | None, ...] = (),
 ) -> Alignment:
-    """Align ``cur`` to ``ref`` from their current relative pose, then test the edge: the odometry's
+    """Align ``cur`` to ``ref`` from their current relative pose (``shutters``: their rolling shutters,
+    ``cur``'s first, as :func:`track_pyramids` takes them; () = global), then test the edge: the odometry's
     own checks (converged, overlap, pose σ), an inlier ratio of at least ``cfg.min_inlier_ratio``,
     and consistency with the current estimate (the chain): within ``max_edge_m`` / ``max_edge_deg``
     of it, or ``loop_max_correction_m`` / ``_deg`` for a loop closure (drift is what it corrects)."""
     T_init = invert_pose(ref.pose.double()) @ cur.pose.double()
-    result = track_pyramids(ref_pyr, cur_pyr, T_init, wide_config(odometry, cfg) if loop else odometry)
+    result = track_pyramids(ref_pyr, cur_pyr, T_init, wide_config(odometry, cfg) if loop else odometry, shutters=shutters)
     metres, degrees = pose_difference(T_init, result.T_ref_cur)
     max_m, max_deg = (cfg.loop_max_correction_m, cfg.loop_max_correction_deg) if loop else (cfg.max_edge_m, cfg.max_edge_deg)
     reason = ""

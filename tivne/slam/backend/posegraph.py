@@ -18,6 +18,7 @@ from tivne.render.rays import View
 from tivne.slam.backend.edges import Alignment, align, covisible_candidates, keyframe_pyramid, loop_candidates
 from tivne.slam.backend.graph import Factor, PoseGraph, left_to_gtsam_information
 from tivne.slam.tracking.pyramid import PyramidLevel
+from tivne.slam.tracking.sensor import Shutter
 
 
 @dataclass
@@ -48,8 +49,10 @@ def fallback_information(cfg: BackendConfig) -> torch.Tensor:
 class KeyframePoseGraph:
     """Keyframe pose graph with co-visibility edges and loop closures (see :mod:`tivne.slam.backend`)."""
 
-    def __init__(self, cfg: BackendConfig, odometry: OdometryConfig) -> None:
-        self.cfg, self.odometry = cfg, odometry
+    def __init__(self, cfg: BackendConfig, odometry: OdometryConfig, readout_s: float = 0.0) -> None:
+        """``readout_s``: the camera's rolling-shutter readout (:class:`Shutter`; 0 = global shutter)."""
+        self.cfg, self.odometry, self.readout_s = cfg, odometry, readout_s
+        self.velocities: dict[int, torch.Tensor] = {}  # frame id -> (6,) the keyframe camera's velocity, where tracked with it
         self.graph = PoseGraph(cfg.robust, cfg.robust_k)
         self.counters = GraphCounters()
         self.closures: list[tuple[int, int]] = []  # (old, new) frame ids of the accepted loop closures
@@ -73,11 +76,14 @@ class KeyframePoseGraph:
         info = left_to_gtsam_information(a.result.information, a.result.T_ref_cur) * self.cfg.information_scale
         return Factor(a.ref, a.cur, a.result.T_ref_cur.double().cpu(), info, robust, loop)
 
-    def add_keyframe(self, views: list[View], K: torch.Tensor) -> dict[int, torch.Tensor]:
-        """``views``: the stored keyframes, oldest first, the new one last (at its tracked pose).
-        Adds its node and edges, optimises, and returns {frame id: corrected (4, 4) float64 c2w}
-        for every keyframe of ``views``."""
+    def add_keyframe(self, views: list[View], K: torch.Tensor, velocity: torch.Tensor | None = None) -> dict[int, torch.Tensor]:
+        """``views``: the stored keyframes, oldest first, the new one last (at its tracked pose);
+        ``velocity``: the new one's camera velocity (6,) (:attr:`TrackResult.velocity`), which with a
+        rolling shutter its edges model as the odometry did. Adds its node and edges, optimises, and
+        returns {frame id: corrected (4, 4) float64 c2w} for every keyframe of ``views``."""
         new, earlier = views[-1], [v for v in views[:-1] if v.frame_id in self.graph]
+        if velocity is not None and self.readout_s > 0:
+            self.velocities[new.frame_id] = velocity.detach().double().cpu()
         start = time.perf_counter()
         self.graph.add_node(new.frame_id, new.pose)
         self.counters.keyframes += 1
@@ -87,7 +93,7 @@ class KeyframePoseGraph:
                 self._add_covisible(earlier[i], new, cur_pyr, K, predecessor=i == len(earlier) - 1)
             for i in loop_candidates(earlier, new, K, self.cfg):
                 old = keyframe_pyramid(earlier[i], K, self.odometry, self.cfg)  # not cached: loop candidates are rarely reused
-                a = align(earlier[i], new, old, cur_pyr, self.odometry, self.cfg, loop=True)
+                a = align(earlier[i], new, old, cur_pyr, self.odometry, self.cfg, loop=True, shutters=self._shutters(earlier[i], new))
                 if a.accepted:
                     self.graph.add_factor(self._factor(a, robust=True, loop=True))
                     self.closures.append((a.ref, a.cur))
@@ -100,8 +106,15 @@ class KeyframePoseGraph:
         self.counters.optimise_ms = self.graph.optimise_ms
         return {v.frame_id: poses[v.frame_id] for v in views if v.frame_id in poses}
 
+    def _shutters(self, ref: View, cur: View) -> tuple[Shutter | None, ...]:
+        """The rolling shutters of an edge's two keyframes, ``cur``'s first; () where ``cur``'s velocity is not known."""
+        if cur.frame_id not in self.velocities:
+            return ()
+        known = self.velocities.get(ref.frame_id)
+        return Shutter(self.readout_s, self.velocities[cur.frame_id]), None if known is None else Shutter(self.readout_s, known)
+
     def _add_covisible(self, ref: View, new: View, cur_pyr: list[PyramidLevel], K: torch.Tensor, predecessor: bool) -> None:
-        a = align(ref, new, self._pyramid(ref, K), cur_pyr, self.odometry, self.cfg, loop=False)
+        a = align(ref, new, self._pyramid(ref, K), cur_pyr, self.odometry, self.cfg, loop=False, shutters=self._shutters(ref, new))
         if a.accepted:
             self.graph.add_factor(self._factor(a, robust=not predecessor, loop=False))
             self.counters.edges += 1
@@ -127,10 +140,12 @@ class KeyframePoseGraph:
         return {f"graph/{k}": float(v) for k, v in asdict(self.counters).items()}
 
     def state_dict(self) -> dict:
-        return {"graph": self.graph.state_dict(), "counters": asdict(self.counters), "closures": [list(c) for c in self.closures]}
+        return {"graph": self.graph.state_dict(), "counters": asdict(self.counters), "closures": [list(c) for c in self.closures],
+                "velocities": dict(self.velocities)}
 
     def load_state_dict(self, state: dict) -> None:
         self.graph.load_state_dict(state["graph"])
         self.counters = GraphCounters(**state["counters"])
         self.closures = [(int(a), int(b)) for a, b in state["closures"]]
+        self.velocities = {int(i): v.double().cpu() for i, v in state.get("velocities", {}).items()}  # none in older checkpoints
         self._pyramids.clear()
