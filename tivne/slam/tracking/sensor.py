@@ -39,6 +39,11 @@ class Shutter:
         return dt * (torch.linalg.cross(xi[3:, None].expand_as(p), p, dim=0) + xi[:3, None])
 
 
+def moving_shutter(readout_s: float, velocity: torch.Tensor | None) -> Shutter | None:
+    """The shutter of a frame taken at ``velocity`` (6,), or None where its velocity is not known."""
+    return None if velocity is None else Shutter(readout_s, velocity)
+
+
 def twist_per_second(before: torch.Tensor, after: torch.Tensor, dt: float) -> torch.Tensor:
     """(6,) float64 body twist (v, ω) per second carrying c2w ``before`` to ``after`` (4, 4) in dt seconds."""
     return se3_log((invert_pose(before.double()) @ after.double())[None])[0] / dt
