@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from tivne.config import ConfigError, FieldConfig, MappingConfig, ObjectFieldConfig
-from tivne.field.networks import TimeVaryingField
+from tivne.field.networks import TimeVaryingField, time_encoding
 from tivne.field.objects import ObjectField, attach_optimizer, build_field, inside_box, static_only, world_to_object
 from tivne.field.oracle import ground_truth_tracks
 
@@ -125,6 +125,19 @@ def test_the_object_residual_deformation_is_zero_at_its_first_time():
     moved = (torch.tensor([[0.0, 0.0, 0.0]], dtype=torch.float64) @ later[:3, :3].T + later[:3, 3]).float()
     with torch.no_grad():
         assert float(field(moved, torch.full((1,), tau + 0.3)).offset_sq[0]) > 0
+
+
+def test_an_object_fields_time_code_tells_apart_states_that_the_static_fields_code_shares():
+    """field's default code repeats every 2 s of τ; an object's (object_field.time_lowest_octave)
+    only after 16 s, so a deforming object's states 2 s or 8 s apart get their own codes."""
+    static = FieldConfig()
+    own = ObjectFieldConfig().object_config(static)
+    assert TimeVaryingField(own).time_lowest_octave == own.time_lowest_octave == -3
+    tau = torch.tensor([1.0, 3.0, 9.0])
+    shared = time_encoding(tau, static.time_frequencies, static.time_lowest_octave)[:, 1:]  # the periodic part
+    assert torch.allclose(shared[0], shared[1], atol=1e-5) and torch.allclose(shared[0], shared[2], atol=1e-5)
+    code = time_encoding(tau, own.time_frequencies, own.time_lowest_octave)[:, 1:]
+    assert float((code[0] - code[1]).norm()) > 0.5 and float((code[0] - code[2]).norm()) > 0.5
 
 
 def test_object_fields_join_the_map_optimiser_and_learn():
