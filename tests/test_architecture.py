@@ -207,7 +207,7 @@ def test_objects_package_uses_only_the_odometry_of_the_loop():
 # be re-wired onto another loop; gtsam (an optional extra) is imported by one module only.
 BACKEND = "tivne.slam.backend"
 BACKEND_MAY_IMPORT_FROM_SLAM = ("tivne.slam.tracking.odometry", "tivne.slam.tracking.pyramid", "tivne.slam.keyframes", "tivne.slam.tracking.robust",
-                                "tivne.slam.tracking.overlap", BACKEND)
+                                "tivne.slam.tracking.overlap", "tivne.slam.tracking.sensor", BACKEND)
 GTSAM_MODULES = {"tivne.slam.backend.graph"}
 
 
