@@ -18,7 +18,7 @@ from tivne.render.rays import View
 from tivne.slam.backend.edges import Alignment, align, covisible_candidates, keyframe_pyramid, loop_candidates
 from tivne.slam.backend.graph import Factor, PoseGraph, left_to_gtsam_information
 from tivne.slam.tracking.pyramid import PyramidLevel
-from tivne.slam.tracking.sensor import Shutter, moving_shutter
+from tivne.slam.tracking.sensor import Shutter, frame_shutters
 
 
 @dataclass
@@ -108,10 +108,7 @@ class KeyframePoseGraph:
 
     def _shutters(self, ref: View, cur: View) -> tuple[Shutter | None, ...]:
         """The rolling shutters of an edge's two keyframes, ``cur``'s first; () where ``cur``'s velocity is not known."""
-        if cur.frame_id not in self.velocities:
-            return ()
-        readout, velocities = self.readout_s, self.velocities
-        return moving_shutter(readout, velocities[cur.frame_id]), moving_shutter(readout, velocities.get(ref.frame_id))
+        return frame_shutters(self.readout_s, self.velocities.get(cur.frame_id), self.velocities.get(ref.frame_id))
 
     def _add_covisible(self, ref: View, new: View, cur_pyr: list[PyramidLevel], K: torch.Tensor, predecessor: bool) -> None:
         a = align(ref, new, self._pyramid(ref, K), cur_pyr, self.odometry, self.cfg, loop=False, shutters=self._shutters(ref, new))

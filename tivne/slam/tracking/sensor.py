@@ -44,6 +44,17 @@ def moving_shutter(readout_s: float, velocity: torch.Tensor | None) -> Shutter |
     return None if velocity is None else Shutter(readout_s, velocity)
 
 
+def frame_shutters(
+    readout_s: float, velocity: torch.Tensor | None, *reference_velocities: torch.Tensor | None
+) -> tuple[Shutter | None, ...]:
+    """The ``shutters`` of :func:`~tivne.slam.tracking.odometry.track_pyramids` for a frame taken at
+    ``velocity`` (6,) and its references taken at theirs (None where one is not known); () (a global
+    shutter) where the frame's own velocity is not known."""
+    if velocity is None:
+        return ()
+    return (Shutter(readout_s, velocity), *(moving_shutter(readout_s, v) for v in reference_velocities))
+
+
 def twist_per_second(before: torch.Tensor, after: torch.Tensor, dt: float) -> torch.Tensor:
     """(6,) float64 body twist (v, ω) per second carrying c2w ``before`` to ``after`` (4, 4) in dt seconds."""
     return se3_log((invert_pose(before.double()) @ after.double())[None])[0] / dt

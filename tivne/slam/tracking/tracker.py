@@ -53,7 +53,7 @@ from tivne.slam.tracking.odometry import OdometryResult, frame_pyramid, track_py
 from tivne.slam.tracking.overlap import views_seeing
 from tivne.slam.tracking.pyramid import PyramidLevel
 from tivne.slam.tracking.result import TrackResult, TrackStatus
-from tivne.slam.tracking.sensor import Shutter, moving_shutter, twist_per_second
+from tivne.slam.tracking.sensor import Shutter, frame_shutters, moving_shutter, twist_per_second
 
 
 class PoseLookup(Protocol):
@@ -277,10 +277,7 @@ class Tracker:
         if self._shutter_dt is None:
             return ()
         current = Shutter(self.readout_s, torch.zeros(6, dtype=torch.float64), previous, self._shutter_dt)
-        return (current, *map(self._shutter_of, references))
-
-    def _shutter_of(self, ref: Reference) -> Shutter | None:
-        return moving_shutter(self.readout_s, ref.velocity)
+        return (current, *(moving_shutter(self.readout_s, ref.velocity) for ref in references))
 
     def update_reference(
         self, view: View, K: torch.Tensor, result: TrackResult, is_keyframe: bool, poses: PoseLookup | None = None
@@ -337,7 +334,7 @@ class Tracker:
         ``ref_pose``) from their current relative pose: the odometry converges, keeps
         reuse_min_overlap of the frame in view and reference_min_inliers of its pixels (a view seen
         with other blur or exposure, drifted beyond the basin, or already falling behind, is not reused)."""
-        shutters = () if velocity is None else (moving_shutter(self.readout_s, velocity), self._shutter_of(ref))
+        shutters = frame_shutters(self.readout_s, velocity, ref.velocity)
         result = track_pyramids(ref.pyramid, pyramid, invert_pose(ref_pose.double()) @ pose.double(), self.odometry, shutters=shutters)
         return result.ok and result.overlap >= self.cfg.reuse_min_overlap and result.inlier_ratio >= self.cfg.reference_min_inliers
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from tivne.geometry import se3_exp, transform_points
-from tivne.slam.tracking.sensor import Shutter
+from tivne.slam.tracking.sensor import Shutter, frame_shutters
 
 XI = torch.tensor([0.3, -0.1, 0.2, 0.5, 2.0, -0.4], dtype=torch.float64)  # (v m/s, ω rad/s)
 
@@ -33,3 +33,10 @@ def test_the_velocity_of_an_estimate_comes_from_the_previous_pose():
     moving = Shutter(0.03, torch.zeros(6, dtype=torch.float64), previous, dt).at(T)
     assert torch.allclose(moving.velocity, XI, atol=1e-9)
     assert Shutter(0.03, XI).at(T).velocity is XI  # no previous pose: the velocity it was given
+
+
+def test_a_frames_shutters_are_global_without_its_velocity_and_none_where_a_references_is_unknown():
+    v = torch.tensor([0.1, 0.0, 0.0, 0.0, 1.0, 0.0], dtype=torch.float64)
+    assert frame_shutters(0.03, None, v) == ()
+    current, known, unknown = frame_shutters(0.03, v, 2 * v, None)
+    assert current.readout_s == 0.03 and torch.equal(current.velocity, v) and torch.equal(known.velocity, 2 * v) and unknown is None
