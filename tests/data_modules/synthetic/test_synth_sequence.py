@@ -13,7 +13,7 @@ from hydra.utils import instantiate
 from data_modules.frame import DatasetError
 from data_modules.synthetic import SyntheticSequence
 from data_modules.synthetic.shapes import shape_sdf
-from tivne.geometry import invert_pose, pixel_grid, pixel_to_ray, project, transform_points
+from tivne.geometry import invert_pose, pixel_grid, pixel_to_ray, project, se3_exp, transform_points
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -171,7 +171,5 @@ def test_a_rolling_shutter_render_sees_each_band_of_rows_from_where_the_camera_w
     moving_rgb, moving = ds.render_rolling_shutter(P, velocity, 0.03, t, band=1)
     middle = slice(17, 19)  # rows 17 and 18 are read 1/72 of the readout either side of the middle
     assert (moving[middle] - depth[middle]).abs().max() < 0.05
-    twist = torch.zeros(4, 4, dtype=torch.float64)
-    twist[0, 2], twist[2, 0], twist[0, 3] = 4.0, -4.0, 0.3
-    first = ds.render_at(P @ torch.linalg.matrix_exp(-(35 / 2) / 36 * 0.03 * twist), t)[1]
+    first = ds.render_at(P @ se3_exp(-(35 / 2) / 36 * 0.03 * velocity), t)[1]
     assert torch.equal(moving[0], first[0]) and not torch.equal(moving[0], depth[0])
