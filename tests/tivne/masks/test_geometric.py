@@ -107,6 +107,22 @@ def test_geometric_frames_source_segments_the_moved_object():
     assert (provider(make_frame(2, depth=depth), ctx(2)) & now).sum() > 0.8 * now.sum()
 
 
+@pytest.mark.parametrize("stride", [1, 4])
+def test_geometric_mask_of_an_object_entering_at_the_border_reaches_the_border(stride):
+    # The object tracker starts no track from a view the border cuts (tivne.slam.objects.instances.touches_border);
+    # a mask stopping a stride short of the edge hid every such view from it.
+    from tivne.slam.objects.instances import touches_border
+
+    K = Intrinsics(50.0, 50.0, W / 2, H / 2, W, H).K()
+    provider = GeometricMasks(source="frames", stride=stride, min_area=4)
+    ctx = lambda k: MaskContext(None, torch.eye(4), K, k / 30, RenderConfig(), k)  # noqa: E731
+    provider(make_frame(0, depth=box_depth(K, 0.8, 2.0, -0.3, 0.3, 1.5)[0]), ctx(0))
+    depth, now = box_depth(K, 0.5, 2.0, -0.3, 0.3, 1.5)  # slid 0.3 m into the view, still cut by its right edge
+    mask = provider(make_frame(1, depth=depth), ctx(1))
+    assert now[:, -1].any() and (mask & now).sum() / (mask | now).sum() > (0.9 if stride == 1 else 0.65)  # nearest upsampling
+    assert mask[now[:, -1], -1].sum() >= now[:, -1].sum() - stride and touches_border(mask)
+
+
 def test_geometric_drops_a_mask_that_leaves_too_little_static_scene():
     K = Intrinsics(50.0, 50.0, W / 2, H / 2, W, H).K()
     ctx = lambda k: MaskContext(None, torch.eye(4), K, k / 30, RenderConfig(), k)  # noqa: E731

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from data_modules.sensor import kinect_depth_sigma
-from tivne.masks.segments import clean_mask, concave_creases, depth_segments
+from tivne.masks.segments import clean_mask, closing, concave_creases, depth_segments, opening
 
 sys.path.insert(0, str(Path(__file__).parent))
 from mask_scenes import H, W, scene_depth, square  # noqa: E402
@@ -54,6 +54,32 @@ def test_clean_mask_grows_seeds_drops_speckle_and_keeps_temporal():
     assert clean_mask(none, depth, previous=obj.numpy()).sum() == obj.sum()
     # A segment covering most of the frame (the background) is never dynamic.
     assert not clean_mask(np.ones_like(seeds), scene_depth(None).numpy()).any()
+
+
+def test_clean_mask_keeps_the_pixels_where_the_image_border_cuts_an_object():
+    # The object tracker reads "cut off by the view" from a mask reaching the border; the closing took
+    # the border column (scipy's 0 border), so every geometric mask stopped a stride short of it.
+    obj = square(10, W - 12, 14)[:, :W]  # 12 columns, the last of them the image's last
+    depth = scene_depth(obj).numpy()
+    seeds = obj.numpy().copy()
+    seeds[:, W - 1] = False  # the edge itself not flagged: the opening, closing and edge growth give it back
+    for close_radius in (1, 2):
+        out = clean_mask(seeds, depth, close_radius=close_radius)
+        assert np.array_equal(out, obj.numpy())
+    assert clean_mask(obj.numpy().copy(), depth)[:, W - 1].any()
+
+
+def test_opening_and_closing_are_scipy_s_inside_and_take_nothing_from_the_image_edge():
+    from scipy import ndimage
+
+    rng = np.random.default_rng(0)
+    mask = rng.random((30, 40)) < 0.55
+    window = np.ones((3, 3), bool)
+    inside = (slice(2, -2), slice(2, -2))
+    assert np.array_equal(opening(mask, 1)[inside], ndimage.binary_opening(mask, window)[inside])
+    assert np.array_equal(closing(mask, 1)[inside], ndimage.binary_closing(mask, window)[inside])
+    full = np.ones((30, 40), bool)
+    assert opening(full, 1).all() and closing(full, 1).all()
 
 
 def test_clean_mask_segment_score_catches_slow_motion_but_not_a_pose_error():
