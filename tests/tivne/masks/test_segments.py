@@ -59,7 +59,7 @@ def test_clean_mask_grows_seeds_drops_speckle_and_keeps_temporal():
 def test_clean_mask_keeps_the_pixels_where_the_image_border_cuts_an_object():
     # The object tracker reads "cut off by the view" from a mask reaching the border; the closing took
     # the border column (scipy's 0 border), so every geometric mask stopped a stride short of it.
-    obj = square(10, W - 12, 14)[:, :W]  # 12 columns, the last of them the image's last
+    obj = square(10, W - 12, 14)  # 14 wide from 12 columns before the edge: the image cuts its last 2
     depth = scene_depth(obj).numpy()
     seeds = obj.numpy().copy()
     seeds[:, W - 1] = False  # the edge itself not flagged: the opening, closing and edge growth give it back
