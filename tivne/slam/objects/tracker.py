@@ -237,8 +237,9 @@ class ObjectTracker:
         # because it is cut, not because the reference is stale, and a chain of ever smaller cut
         # views, each over half the one before, would leave a sliver to centre and align the object
         # on when it comes back (crossing, scene seed 4: 8.8 cm off after its near box left the view).
-        stale = res.overlap < self.cfg.keyframe_overlap or res.inlier_ratio < self.cfg.keyframe_inliers
-        share = 1.0 if touches_border(mask) and res.inlier_ratio >= self.cfg.keyframe_inliers else 0.5
+        misfit = res.inlier_ratio < self.cfg.keyframe_inliers  # the reference no longer fits what is seen
+        stale = res.overlap < self.cfg.keyframe_overlap or misfit
+        share = 1.0 if touches_border(mask) and not misfit else 0.5
         new_ref = stale and shows_enough(int(inner.sum()), float(camera_in_object(T_wo, T_wc)[:3, 3].norm()), ref, share)
         self._remember(oid, inner, depth, T_wc, T_wo, t, pyramid if new_ref else None, tau)
         if not back and np.isfinite(res.rms_photometric):
